@@ -1,0 +1,33 @@
+# nbvs_drake: `make run` sets everything up and reconstructs the default scene;
+# `make test` sets everything up and runs the test suite. Set-up happens once:
+# `.venv/.installed` is rebuilt only when pyproject.toml changes.
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.installed
+OUT ?= results/default
+
+.PHONY: setup run test test-slow bench diagrams clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	PYTHON=$(PYTHON) bash scripts/setup.sh
+	touch $(STAMP)
+
+run: setup
+	$(VENV)/bin/nbvs reconstruct --out $(OUT)
+
+test: setup
+	$(VENV)/bin/python -m pytest -q -m "not slow"
+
+test-slow: setup
+	$(VENV)/bin/python -m pytest -q -m slow
+
+bench: setup
+	$(VENV)/bin/python benchmarks/run_all.py
+
+diagrams: setup
+	$(VENV)/bin/nbvs diagram --all
+
+clean:
+	rm -rf $(VENV) results .pytest_cache

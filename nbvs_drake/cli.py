@@ -1,0 +1,59 @@
+"""Command line: `nbvs reconstruct`, `nbvs diagram`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .errors import NbvsError
+
+
+def _cmd_reconstruct(args):
+    from .config import load_scenario
+    from .mission import run_mission
+    sc = load_scenario(args.scenario, seed=args.seed)
+    out = Path(args.out or f"results/{sc.name}")
+    run_mission(sc, out, verbose=not args.quiet)
+
+
+def _cmd_diagram(args):
+    from . import DIAGRAMS_DIR
+    from .config import load_scenario
+    from .wiring import write_wiring
+    paths = sorted(DIAGRAMS_DIR.glob("*.yaml")) if args.all else [args.scenario]
+    for p in paths:
+        sc = load_scenario(p)
+        out = Path(args.out) if (args.out and not args.all) else DIAGRAMS_DIR / f"{sc.name}_wiring"
+        for f in write_wiring(sc, out):
+            print(f)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="nbvs", description="Next-best-view/state planning on a Drake diagram")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("reconstruct", help="reconstruct the scenario's object; write model, metrics and plots")
+    r.add_argument("--scenario", default=None, help="scenario YAML (default: diagrams/default.yaml)")
+    r.add_argument("--out", default=None, help="output folder (default: results/<scenario name>)")
+    r.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    r.add_argument("--quiet", action="store_true")
+    r.set_defaults(func=_cmd_reconstruct)
+    d = sub.add_parser("diagram", help="write the Graphviz wiring of a scenario's diagram")
+    d.add_argument("--scenario", default=None)
+    d.add_argument("--out", default=None, help="output path without extension")
+    d.add_argument("--all", action="store_true", help="every scenario in diagrams/")
+    d.set_defaults(func=_cmd_diagram)
+    args = ap.parse_args(argv)
+    try:
+        args.func(args)
+    except NbvsError as e:
+        print(f"nbvs: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("nbvs: interrupted (finished iterations are in iterations.jsonl)", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

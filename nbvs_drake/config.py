@@ -1,0 +1,261 @@
+"""Scenario configuration: typed dataclasses loaded from YAML with Drake's ``yaml_load_typed``.
+
+A scenario declares one diagram: robot, scene (table, object, bounding box W_box), sensor,
+motion noise, mapper, planner and mission. Unknown keys are an error; impossible values are
+rejected by :func:`validate` with a one-line message naming the field.
+"""
+
+
+
+import copy
+import dataclasses as dc
+import math
+from pathlib import Path
+
+from .errors import ScenarioError
+
+# --------------------------------------------------------------------------------------
+# Dataclasses (defaults = FACTS.md / seed 000 Table 1 and Table 4)
+# --------------------------------------------------------------------------------------
+
+
+@dc.dataclass
+class RobotConfig:
+    urdf: str = "patrolbot_katana.urdf"  #: relative to models/ (or absolute)
+    #: start state [x, y, theta, q1..q5] (m, rad); the object must be in view from it.
+    start: list[float] = dc.field(
+        default_factory=lambda: [-1.45, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0])
+    xy_bounds: list[float] = dc.field(default_factory=lambda: [-1.9, 1.9])
+    control_dt: float = 0.1  #: each control u_t is held for this long (s)
+    max_linear_velocity: float = 0.3  #: m/s used by the steering function
+    max_angular_velocity: float = 0.6  #: rad/s (base)
+    max_arm_velocity: float = 0.6  #: rad/s (each arm joint, below the Katana limits)
+
+
+@dc.dataclass
+class ObjectConfig:
+    kind: str = "teapot"  #: "teapot" (Newell's patches) or "mesh"
+    mesh: str = ""  #: OBJ/PLY/STL path (relative to the scenario file) when kind = mesh
+    size: float = 0.40  #: longest extent in metres after scaling (0: use `scale` as is)
+    scale: float = 1.0  #: mesh units -> metres, used when size = 0
+    xy: list[float] = dc.field(default_factory=lambda: [0.0, 0.0])  #: footprint centre on the table
+    yaw_deg: float = 0.0
+    tessellation: int = 12  #: teapot: subdivisions per Bezier patch side
+
+
+@dc.dataclass
+class SceneConfig:
+    table_size: list[float] = dc.field(default_factory=lambda: [0.8, 1.0])  #: x, y (m)
+    table_height: float = 0.43  #: top surface z (m)
+    bbox_min: list[float] = dc.field(default_factory=lambda: [-0.4, -0.4, 0.43])  #: W_box
+    bbox_max: list[float] = dc.field(default_factory=lambda: [0.4, 0.4, 0.95])
+    clutter: str = "none"  #: "none" or "chairs" (nine chairs around the table, seed 000 Fig. 13)
+    object: ObjectConfig = dc.field(default_factory=ObjectConfig)
+    gt_points: int = 40000  #: ground-truth surface samples for coverage
+
+
+@dc.dataclass
+class SensorConfig:
+    #: "sr4000" (176x144 ToF, 43.6x34.6 deg, 0.4-5 m), "kinect" (640x480, 57x43 deg,
+    #: 0.7-6 m, axial noise) or "custom" (all fields below must be set).
+    preset: str = "sr4000"
+    width: int = 0  #: 0: from the preset
+    height: int = 0
+    fov_x_deg: float = 0.0
+    fov_y_deg: float = 0.0
+    z_near: float = 0.0
+    z_far: float = 0.0
+    #: axial noise sigma_z = noise_a + noise_b (z - 0.4)^2 (m); -1: from the preset
+    noise_a: float = -1.0
+    noise_b: float = -1.0
+
+
+SENSOR_PRESETS = {
+    "sr4000": dict(width=176, height=144, fov_x_deg=43.6, fov_y_deg=34.6, z_near=0.4,
+                   z_far=5.0, noise_a=0.0, noise_b=0.0),
+    "kinect": dict(width=640, height=480, fov_x_deg=57.0, fov_y_deg=43.0, z_near=0.7,
+                   z_far=6.0, noise_a=0.0012, noise_b=0.0019),
+}
+
+
+@dc.dataclass
+class NoiseConfig:
+    """Zero-mean Gaussian control noise (seed 000 §6.1), truncated at +-beta sigma."""
+    sigma_v: float = 0.00165  #: m/s (Table 4: 1.65 mm/s)
+    sigma_w: float = 0.28  #: rad/s (Table 4)
+    sigma_arm: list[float] = dc.field(default_factory=lambda: [0.0] * 5)  #: rad/s
+    beta: float = 3.0  #: truncation in units of sigma
+
+
+@dc.dataclass
+class MapperConfig:
+    voxel_size: float = 0.02
+    margin: float = 0.04  #: map = W_box grown by this (x, y, top); the table bounds it below
+    prob_hit: float = 0.7  #: OctoMap sensor model
+    prob_miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    free_below: float = 0.45  #: class thresholds: free < 0.45 <= unknown <= 0.55 < occupied
+    occupied_above: float = 0.55
+    #: points closer than this to the table top are not object points (cloud filter volume)
+    table_clearance: float = 0.005
+
+
+@dc.dataclass
+class PlannerConfig:
+    strategy: str = "random_sampling"
+    n_candidates: int = 4000  #: state samples whose director ray meets W_box
+    overlap_h: float = 0.5  #: registration threshold h (Table 1: 50 %)
+    top_k: int = 25  #: candidates kept for motion planning (§7.6 step 7)
+    weights: list[float] = dc.field(
+        default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
+    use_distance: bool = True
+    ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
+    max_generation_factor: int = 60  #: at most this many x n_candidates raw samples
+
+
+@dc.dataclass
+class MissionConfig:
+    max_scans: int = 12
+    max_sim_time: float = 7200.0  #: simulated seconds before the run is cut off
+
+
+@dc.dataclass
+class Scenario:
+    name: str = "default"
+    seed: int = 0
+    robot: RobotConfig = dc.field(default_factory=RobotConfig)
+    scene: SceneConfig = dc.field(default_factory=SceneConfig)
+    sensor: SensorConfig = dc.field(default_factory=SensorConfig)
+    noise: NoiseConfig = dc.field(default_factory=NoiseConfig)
+    mapper: MapperConfig = dc.field(default_factory=MapperConfig)
+    planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
+    mission: MissionConfig = dc.field(default_factory=MissionConfig)
+    #: folder that relative paths (meshes) are resolved against; set by the loader
+    base_dir: str = ""
+
+
+# --------------------------------------------------------------------------------------
+# Loading and validation
+# --------------------------------------------------------------------------------------
+
+
+def load_scenario(path=None, *, seed=None) -> "Scenario":
+    """Loads and validates a scenario YAML (``None``: the built-in default scenario)."""
+    from pydrake.common.yaml import yaml_load_typed
+
+    if path is None:
+        from . import DEFAULT_SCENARIO
+        path = DEFAULT_SCENARIO
+    path = Path(path)
+    if not path.is_file():
+        raise ScenarioError(f"scenario file not found: {path}")
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise ScenarioError(f"cannot read scenario file {path}: {e.strerror}") from None
+    try:
+        scenario = yaml_load_typed(schema=Scenario, data=text, defaults=Scenario())
+    except Exception as e:  # yaml_load_typed raises RuntimeError / yaml errors
+        msg = " ".join(str(e).split())
+        raise ScenarioError(f"malformed scenario {path.name}: {msg}") from None
+    if not scenario.base_dir:
+        scenario.base_dir = str(path.resolve().parent)
+    if seed is not None:
+        scenario.seed = int(seed)
+    validate(scenario)
+    return scenario
+
+
+def resolve_sensor(sensor: SensorConfig) -> SensorConfig:
+    """Returns a copy with every preset-derived field filled in."""
+    s = copy.deepcopy(sensor)
+    if s.preset != "custom":
+        if s.preset not in SENSOR_PRESETS:
+            raise ScenarioError(
+                f"sensor.preset must be one of {sorted(SENSOR_PRESETS) + ['custom']}, got {s.preset!r}")
+        for k, v in SENSOR_PRESETS[s.preset].items():
+            cur = getattr(s, k)
+            if (isinstance(v, int) and cur == 0) or (k.startswith("noise") and cur < 0) or \
+                    (not k.startswith("noise") and isinstance(v, float) and cur == 0.0):
+                setattr(s, k, v)
+    return s
+
+
+def _require(cond: bool, msg: str):
+    if not cond:
+        raise ScenarioError(msg)
+
+
+def _finite(*xs) -> bool:
+    return all(isinstance(x, (int, float)) and math.isfinite(x) for x in xs)
+
+
+def validate(sc: Scenario) -> Scenario:
+    """Raises ScenarioError naming the first impossible value."""
+    r, s, n, m, p = sc.robot, sc.scene, sc.noise, sc.mapper, sc.planner
+    _require(len(r.start) == 8 and _finite(*r.start),
+             f"robot.start must be 8 finite numbers [x, y, theta, q1..q5], got {r.start}")
+    _require(len(r.xy_bounds) == 2 and r.xy_bounds[0] < r.xy_bounds[1],
+             f"robot.xy_bounds must be [min, max] with min < max, got {r.xy_bounds}")
+    for k in ("control_dt", "max_linear_velocity", "max_angular_velocity", "max_arm_velocity"):
+        v = getattr(r, k)
+        _require(_finite(v) and v > 0, f"robot.{k} must be > 0, got {v}")
+
+    _require(len(s.bbox_min) == 3 and len(s.bbox_max) == 3,
+             "scene.bbox_min and scene.bbox_max must have 3 numbers each")
+    _require(all(a < b for a, b in zip(s.bbox_min, s.bbox_max)),
+             f"scene bounding box is empty: bbox_min {s.bbox_min} must be below bbox_max {s.bbox_max}")
+    _require(len(s.table_size) == 2 and all(v > 0 for v in s.table_size),
+             f"scene.table_size must be two positive numbers, got {s.table_size}")
+    _require(s.table_height > 0, f"scene.table_height must be > 0, got {s.table_height}")
+    _require(s.clutter in ("none", "chairs"), f"scene.clutter must be 'none' or 'chairs', got {s.clutter!r}")
+    _require(s.gt_points >= 100, f"scene.gt_points must be >= 100, got {s.gt_points}")
+    o = s.object
+    _require(o.kind in ("teapot", "mesh"), f"scene.object.kind must be 'teapot' or 'mesh', got {o.kind!r}")
+    _require(o.kind != "mesh" or o.mesh, "scene.object.kind is 'mesh' but scene.object.mesh is empty")
+    _require(o.size >= 0 and o.scale > 0,
+             f"scene.object.size must be >= 0 and scale > 0, got size {o.size}, scale {o.scale}")
+    _require(len(o.xy) == 2, f"scene.object.xy must have 2 numbers, got {o.xy}")
+    _require(o.tessellation >= 2, f"scene.object.tessellation must be >= 2, got {o.tessellation}")
+
+    rs = resolve_sensor(sc.sensor)
+    _require(rs.width > 0 and rs.height > 0, f"sensor width/height must be > 0, got {rs.width}x{rs.height}")
+    _require(0 < rs.fov_x_deg < 180 and 0 < rs.fov_y_deg < 180,
+             f"sensor field of view must be in (0, 180) deg, got {rs.fov_x_deg}x{rs.fov_y_deg}")
+    _require(0 < rs.z_near < rs.z_far, f"sensor range needs 0 < z_near < z_far, got {rs.z_near}..{rs.z_far}")
+    _require(rs.noise_a >= 0 and rs.noise_b >= 0, "sensor noise_a/noise_b must be >= 0")
+
+    for k in ("sigma_v", "sigma_w"):
+        v = getattr(n, k)
+        _require(_finite(v) and v >= 0, f"noise.{k} must be >= 0 (a standard deviation), got {v}")
+    _require(len(n.sigma_arm) == 5 and all(_finite(v) and v >= 0 for v in n.sigma_arm),
+             f"noise.sigma_arm must be 5 numbers >= 0, got {n.sigma_arm}")
+    _require(_finite(n.beta) and n.beta > 0, f"noise.beta must be > 0 (in sigmas), got {n.beta}")
+
+    _require(m.voxel_size > 0, f"mapper.voxel_size must be > 0, got {m.voxel_size}")
+    _require(m.margin >= 0, f"mapper.margin must be >= 0, got {m.margin}")
+    _require(0.5 < m.prob_hit < 1, f"mapper.prob_hit must be in (0.5, 1), got {m.prob_hit}")
+    _require(0 < m.prob_miss < 0.5, f"mapper.prob_miss must be in (0, 0.5), got {m.prob_miss}")
+    _require(0 < m.clamp_min < m.free_below <= 0.5 <= m.occupied_above < m.clamp_max < 1,
+             "mapper thresholds need 0 < clamp_min < free_below <= 0.5 <= occupied_above < clamp_max < 1")
+    extent = [b - a for a, b in zip(s.bbox_min, s.bbox_max)]
+    nvox = 1
+    for e in extent:
+        nvox *= math.ceil((e + 2 * m.margin) / m.voxel_size)
+    _require(nvox <= 20_000_000, f"map too large: {nvox} voxels (raise mapper.voxel_size)")
+
+    _require(p.strategy in ("random_sampling",),
+             f"planner.strategy must be 'random_sampling', got {p.strategy!r}")
+    _require(p.n_candidates > 0, f"planner.n_candidates must be > 0, got {p.n_candidates}")
+    _require(_finite(p.overlap_h) and 0 <= p.overlap_h <= 1,
+             f"planner.overlap_h (h) must be in [0, 1], got {p.overlap_h}")
+    _require(p.top_k > 0, f"planner.top_k must be > 0, got {p.top_k}")
+    _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),
+             f"planner.weights must be 8 numbers >= 0, got {p.weights}")
+    _require(p.ray_stride >= 1, f"planner.ray_stride must be >= 1, got {p.ray_stride}")
+    _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
+
+    _require(sc.mission.max_scans >= 1, f"mission.max_scans must be >= 1, got {sc.mission.max_scans}")
+    _require(sc.mission.max_sim_time > 0, "mission.max_sim_time must be > 0")
+    return sc

@@ -1,0 +1,111 @@
+"""Builds the mission diagram of a scenario (DESIGN.md):
+
+ NBVSPlanner --controls--> NoisyVelocityController --u--> KinematicPlant (x, y, theta, q1..q5)
+      ^ map                                                     | positions
+ OctreeMapper <--cloud-- DepthImageToPointCloud <-- RgbdSensor   v
+      ^ believed camera pose (CameraPose of the planner's belief)  MultibodyPositionToGeometryPose -> SceneGraph
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+
+from .config import Scenario
+from .mapping.occupancy import OccupancyMap
+from .objects import ObjectMesh, build_object, ground_truth_points
+from .planning.collision import CollisionModel
+from .planning.random_sampling import RandomSamplingPlanner
+from .robot import RobotKinematics, add_robot
+from .scene import add_environment
+
+
+@dc.dataclass
+class MissionDiagram:
+    diagram: object
+    systems: dict
+    kin: RobotKinematics
+    mesh: ObjectMesh
+    gt_points: np.ndarray
+    plant: object  # kept alive: MultibodyPositionToGeometryPose refers to it
+
+
+def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiagram:
+    """`work_dir` receives the object's OBJ (rendered by VTK); `log` is the IterationLog the
+    MissionRecorder writes to (None: no recorder, e.g. for drawing the wiring)."""
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.geometry import SceneGraph
+    from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+    from .systems.collision_monitor import CollisionMonitor
+    from .systems.depth_camera import CameraPose, add_depth_camera, add_renderer
+    from .systems.kinematic_plant import KinematicPlant
+    from .systems.mission_recorder import MissionRecorder
+    from .systems.nbvs_planner import NBVSPlanner
+    from .systems.noisy_velocity_controller import NoisyVelocityController
+    from .systems.octree_mapper import OctreeMapper
+
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    kin = RobotKinematics(sc.robot.urdf)
+    mesh = build_object(sc)
+    obj_path = mesh.write_obj(work_dir / "object.obj")
+    gt = ground_truth_points(mesh, sc, np.random.default_rng([sc.seed, 3]))
+    q0 = np.array(sc.robot.start, float)
+    dt = sc.robot.control_dt
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    add_renderer(scene_graph)
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    add_robot(plant, sc.robot.urdf)
+    add_environment(plant, sc, object_obj=str(obj_path))
+    plant.Finalize()
+    to_pose = builder.AddNamedSystem("position_to_geometry_pose", MultibodyPositionToGeometryPose(plant))
+    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+
+    planning_model = CollisionModel(sc, kin)
+    truth_model = CollisionModel(sc, kin, object_obj=str(obj_path))
+    planner_impl = RandomSamplingPlanner(sc, kin, planning_model)
+
+    kplant = builder.AddNamedSystem("kinematic_plant", KinematicPlant(kin, q0, dt))
+    ctrl = builder.AddNamedSystem("noisy_velocity_controller", NoisyVelocityController(sc.noise, sc.seed, dt))
+    rgbd, to_pc = add_depth_camera(builder, scene_graph, plant, sc.sensor)
+    belief_pose = builder.AddNamedSystem("believed_camera_pose", CameraPose(kin))
+    mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
+    planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0))
+    monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
+
+    builder.Connect(planner.GetOutputPort("controls"), ctrl.GetInputPort("controls"))
+    builder.Connect(ctrl.GetOutputPort("velocity"), kplant.GetInputPort("velocity"))
+    builder.Connect(kplant.GetOutputPort("positions"), to_pose.get_input_port())
+    builder.Connect(planner.GetOutputPort("believed_state"), belief_pose.GetInputPort("state"))
+    builder.Connect(belief_pose.GetOutputPort("camera_pose"), to_pc.camera_pose_input_port())
+    builder.Connect(to_pc.point_cloud_output_port(), mapper.GetInputPort("point_cloud"))
+    builder.Connect(belief_pose.GetOutputPort("camera_pose"), mapper.GetInputPort("camera_pose"))
+    builder.Connect(ctrl.GetOutputPort("status"), mapper.GetInputPort("controller_status"))
+    builder.Connect(rgbd.depth_image_32F_output_port(), mapper.GetInputPort("depth_image"))
+    builder.Connect(mapper.GetOutputPort("map"), planner.GetInputPort("map"))
+    builder.Connect(kplant.GetOutputPort("state"), monitor.GetInputPort("state"))
+    builder.Connect(ctrl.GetOutputPort("status"), monitor.GetInputPort("controller_status"))
+
+    systems = dict(scene_graph=scene_graph, kinematic_plant=kplant, controller=ctrl, rgbd=rgbd,
+                   to_point_cloud=to_pc, mapper=mapper, planner=planner, monitor=monitor,
+                   believed_camera_pose=belief_pose)
+    if log is not None:
+        rec = builder.AddNamedSystem("mission_recorder", MissionRecorder(
+            log, gt, sc.mapper.voxel_size, dt, OccupancyMap.for_scenario(sc)))
+        builder.Connect(mapper.GetOutputPort("map"), rec.GetInputPort("map"))
+        builder.Connect(mapper.GetOutputPort("scan_report"), rec.GetInputPort("scan_report"))
+        builder.Connect(planner.GetOutputPort("report"), rec.GetInputPort("plan_report"))
+        builder.Connect(kplant.GetOutputPort("state"), rec.GetInputPort("true_state"))
+        builder.Connect(planner.GetOutputPort("believed_state"), rec.GetInputPort("believed_state"))
+        builder.Connect(monitor.GetOutputPort("counts"), rec.GetInputPort("collisions"))
+        systems["recorder"] = rec
+    diagram = builder.Build()
+    diagram.set_name(f"nbvs_mission_{sc.name}")
+    return MissionDiagram(diagram, systems, kin, mesh, gt, plant)

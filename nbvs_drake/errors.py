@@ -1,0 +1,13 @@
+"""User-facing errors: each one names the problem in one line (the CLI prints it without a traceback)."""
+
+
+class NbvsError(Exception):
+    """Base class for errors caused by the user's input (scenario, meshes, parameters)."""
+
+
+class ScenarioError(NbvsError):
+    """A scenario file is malformed or holds impossible parameters."""
+
+
+class MeshError(NbvsError):
+    """An object mesh is missing, unreadable or empty."""

@@ -1,0 +1,273 @@
+"""Numba kernels of the probabilistic occupancy map: scan integration and view evaluation,
+both by exact 3D DDA (Amanatides & Woo) over a dense log-odds grid.
+
+Grid convention: voxel (i, j, k) spans [bmin + (i, j, k) * res, bmin + (i+1, j+1, k+1) * res).
+Log-odds classes: free l < l_free, occupied l > l_occ, unknown otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+# columns of the per-view metrics returned by evaluate_views
+M_UN_O = 0  #: distinct visible unknown voxels (first unknown voxel of each ray) = VUV
+M_OC_O = 1  #: distinct occupied voxels hit with at most `max_unknown_before_hit` unknown voxels before them
+M_FIG = 2  #: sum of entropies of distinct unknown voxels touched (each once per view)
+M_SIG = 3  #: sum of entropies of unknown voxels touched, per ray (Kriegel)
+M_RSV = 4  #: rays that hit an occupied voxel whose next voxel along the ray is unknown
+M_RAYS = 5  #: rays that enter the map
+M_OC_RAYS = 6  #: rays whose first non-free voxel is occupied (the scan lands on known surface)
+M_UN_RAYS = 7  #: rays whose first non-free voxel is unknown
+N_METRICS = 8
+
+
+@nb.njit(cache=True, inline="always")
+def _clip(o0, o1, o2, d0, d1, d2, tmin, tmax, b0, b1, b2, e0, e1, e2):
+    """Slab test: clips [tmin, tmax] of the ray o + t d to the box [b, e]. Returns (t0, t1);
+    t0 > t1 when the ray misses."""
+    t0, t1 = tmin, tmax
+    for a in range(3):
+        if a == 0:
+            o, d, lo, hi = o0, d0, b0, e0
+        elif a == 1:
+            o, d, lo, hi = o1, d1, b1, e1
+        else:
+            o, d, lo, hi = o2, d2, b2, e2
+        if abs(d) < 1e-12:
+            if o < lo or o > hi:
+                return 1.0, 0.0
+        else:
+            ta = (lo - o) / d
+            tb = (hi - o) / d
+            if ta > tb:
+                ta, tb = tb, ta
+            if ta > t0:
+                t0 = ta
+            if tb < t1:
+                t1 = tb
+    return t0, t1
+
+
+@nb.njit(cache=True, inline="always")
+def _axis_start(o, d, t0, lo, res, n):
+    """DDA set-up on one axis at parameter t0: (index, step, t of next boundary, t per voxel)."""
+    p = o + t0 * d
+    i = int(math.floor((p - lo) / res))
+    if i < 0:
+        i = 0
+    elif i >= n:
+        i = n - 1
+    if d > 0:
+        return i, 1, (lo + (i + 1) * res - o) / d, res / d
+    if d < 0:
+        return i, -1, (lo + i * res - o) / d, -res / d
+    return i, 0, np.inf, np.inf
+
+
+@nb.njit(cache=True)
+def integrate_scan(logodds, bmin, res, origin, points, is_hit, l_hit, l_miss, l_min, l_max):
+    """Integrates one scan in place (OctoMap's sensor model): every voxel a ray crosses from
+    `origin` to its point is a miss, the voxel of a hit point (is_hit) a hit. Each voxel is
+    updated once per scan and hits win over misses. Rays are clipped to the grid first.
+    Returns the number of voxels updated."""
+    nx, ny, nz = logodds.shape
+    ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    marks = np.zeros(logodds.shape, np.int8)
+    for r in range(points.shape[0]):
+        dx, dy, dz = points[r, 0] - ox, points[r, 1] - oy, points[r, 2] - oz
+        L = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if L < 1e-9:
+            continue
+        dx, dy, dz = dx / L, dy / L, dz / L
+        t0, t1 = _clip(ox, oy, oz, dx, dy, dz, 0.0, L, bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        if t0 > t1:
+            continue
+        i, si, ti, di = _axis_start(ox, dx, t0, bmin[0], res, nx)
+        j, sj, tj, dj = _axis_start(oy, dy, t0, bmin[1], res, ny)
+        k, sk, tk, dk = _axis_start(oz, dz, t0, bmin[2], res, nz)
+        end_inside = t1 >= L - 1e-9  # the point itself lies in the grid
+        while True:
+            tnext = min(ti, tj, tk)
+            last = tnext >= t1
+            if last and end_inside:
+                if is_hit[r]:
+                    marks[i, j, k] = 2
+                # a non-object return (e.g. the table) neither clears nor fills its voxel
+                break
+            if marks[i, j, k] == 0:
+                marks[i, j, k] = 1
+            if last:
+                break
+            if ti <= tj and ti <= tk:
+                i += si
+                ti += di
+                if i < 0 or i >= nx:
+                    break
+            elif tj <= tk:
+                j += sj
+                tj += dj
+                if j < 0 or j >= ny:
+                    break
+            else:
+                k += sk
+                tk += dk
+                if k < 0 or k >= nz:
+                    break
+    n = 0
+    flat = logodds.reshape(-1)
+    fm = marks.reshape(-1)
+    for v in range(flat.shape[0]):
+        m = fm[v]
+        if m == 0:
+            continue
+        x = flat[v] + (l_hit if m == 2 else l_miss)
+        if x < l_min:
+            x = l_min
+        elif x > l_max:
+            x = l_max
+        flat[v] = x
+        n += 1
+    return n
+
+
+@nb.njit(cache=True, inline="always")
+def _entropy_from_logodds(l):
+    p = 1.0 / (1.0 + math.exp(-l))
+    if p <= 0.0 or p >= 1.0:
+        return 0.0
+    return -p * math.log(p) - (1.0 - p) * math.log(1.0 - p)
+
+
+@nb.njit(cache=True)
+def entropy_grid(logodds):
+    """Entropy H(p) of every voxel (float32, same shape)."""
+    out = np.empty(logodds.shape, np.float32)
+    fl = logodds.reshape(-1)
+    fo = out.reshape(-1)
+    for v in range(fl.shape[0]):
+        fo[v] = _entropy_from_logodds(fl[v])
+    return out
+
+
+@nb.njit(cache=True)
+def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
+                   l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, out):
+    nx, ny, nz = logodds.shape
+    ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
+    ox, oy, oz = o[0], o[1], o[2]
+    un = 0
+    oc = 0
+    fig = 0.0
+    sig = 0.0
+    rsv = 0
+    nrays = 0
+    oc_rays = 0
+    un_rays = 0
+    for r in range(dirs_cam.shape[0]):
+        cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
+        dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
+        dy = R[1, 0] * cx + R[1, 1] * cy + R[1, 2] * cz
+        dz = R[2, 0] * cx + R[2, 1] * cy + R[2, 2] * cz
+        t0, t1 = _clip(ox, oy, oz, dx, dy, dz, t_near[r], t_far[r], bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        if t0 > t1:
+            continue
+        nrays += 1
+        i, si, ti, di = _axis_start(ox, dx, t0, bmin[0], res, nx)
+        j, sj, tj, dj = _axis_start(oy, dy, t0, bmin[1], res, ny)
+        k, sk, tk, dk = _axis_start(oz, dz, t0, bmin[2], res, nz)
+        seen_unknown = False
+        n_unknown = 0
+        while True:
+            lv = logodds[i, j, k]
+            if lv > l_occ:
+                flat = (i * ny + j) * nz + k
+                if n_unknown <= max_unknown_before_hit:
+                    oc_rays += 1
+                    if st_oc[flat] != vid:
+                        st_oc[flat] = vid
+                        oc += 1
+                # rear side voxel: the next voxel along the ray
+                i2, j2, k2 = i, j, k
+                if ti <= tj and ti <= tk:
+                    i2 += si
+                elif tj <= tk:
+                    j2 += sj
+                else:
+                    k2 += sk
+                if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz:
+                    lb = logodds[i2, j2, k2]
+                    if l_free <= lb <= l_occ:
+                        rsv += 1
+                break
+            if lv >= l_free:  # unknown
+                flat = (i * ny + j) * nz + k
+                n_unknown += 1
+                h = H[i, j, k]
+                sig += h
+                if st_fig[flat] != vid:
+                    st_fig[flat] = vid
+                    fig += h
+                if n_unknown == max_unknown_before_hit + 1:
+                    un_rays += 1
+                if not seen_unknown:
+                    seen_unknown = True
+                    if st_un[flat] != vid:
+                        st_un[flat] = vid
+                        un += 1
+            if min(ti, tj, tk) >= t1:
+                break
+            if ti <= tj and ti <= tk:
+                i += si
+                ti += di
+                if i < 0 or i >= nx:
+                    break
+            elif tj <= tk:
+                j += sj
+                tj += dj
+                if j < 0 or j >= ny:
+                    break
+            else:
+                k += sk
+                tk += dk
+                if k < 0 or k >= nz:
+                    break
+    out[M_UN_O] = un
+    out[M_OC_O] = oc
+    out[M_FIG] = fig
+    out[M_SIG] = sig
+    out[M_RSV] = rsv
+    out[M_RAYS] = nrays
+    out[M_OC_RAYS] = oc_rays
+    out[M_UN_RAYS] = un_rays
+
+
+@nb.njit(cache=True, parallel=True)
+def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
+                   n_chunks, max_unknown_before_hit=2):
+    """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
+    columns = camera axes in the world, +z forward) and unit ray directions in the camera
+    frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray. Rays pass
+    through unknown voxels and stop at the first occupied one; an occupied voxel counts as
+    overlap (oc_o) when at most `max_unknown_before_hit` unknown voxels precede it on the ray
+    (a surface's thickness: grazing rays cross uncleared voxels just in front of it).
+    Views are split into `n_chunks` chunks evaluated in parallel."""
+    n = cam_pos.shape[0]
+    nvox = logodds.size
+    H = entropy_grid(logodds)
+    out = np.zeros((n, N_METRICS))
+    st_un = np.zeros((n_chunks, nvox), np.int32)
+    st_oc = np.zeros((n_chunks, nvox), np.int32)
+    st_fig = np.zeros((n_chunks, nvox), np.int32)
+    per = (n + n_chunks - 1) // n_chunks
+    for c in nb.prange(n_chunks):
+        lo = c * per
+        hi = min(n, lo + per)
+        for v in range(lo, hi):
+            _eval_one_view(logodds, H, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
+                           t_near, t_far, l_free, l_occ, max_unknown_before_hit, v + 1,
+                           st_un[c], st_oc[c], st_fig[c], out[v])
+    return out

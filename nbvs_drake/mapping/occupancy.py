@@ -1,0 +1,189 @@
+"""The probabilistic occupancy map over W_box (plus a margin) with OctoMap's sensor model.
+
+`OccupancyMap` is an immutable value: `integrate` returns a new map. That lets Drake keep it
+in abstract state and copy contexts freely (copies share the arrays).
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+import os
+
+import numpy as np
+
+from ..config import MapperConfig, Scenario
+from . import kernels as K
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+
+
+def logit(p: float) -> float:
+    return math.log(p / (1.0 - p))
+
+
+@dc.dataclass(frozen=True)
+class SensorModel:
+    l_hit: float
+    l_miss: float
+    l_min: float
+    l_max: float
+    l_free: float  #: below: free
+    l_occ: float  #: above: occupied
+
+    @staticmethod
+    def from_config(m: MapperConfig) -> "SensorModel":
+        return SensorModel(logit(m.prob_hit), logit(m.prob_miss), logit(m.clamp_min),
+                           logit(m.clamp_max), logit(m.free_below), logit(m.occupied_above))
+
+
+@dc.dataclass(frozen=True)
+class GridSpec:
+    bmin: np.ndarray  #: lower corner of voxel (0, 0, 0)
+    res: float
+    dims: tuple[int, int, int]
+
+    @property
+    def bmax(self) -> np.ndarray:
+        return self.bmin + np.array(self.dims) * self.res
+
+    def centers(self) -> np.ndarray:
+        """Voxel centres (nx, ny, nz, 3)."""
+        ax = [self.bmin[a] + (np.arange(self.dims[a]) + 0.5) * self.res for a in range(3)]
+        return np.stack(np.meshgrid(*ax, indexing="ij"), axis=-1)
+
+    def contains(self, pts: np.ndarray) -> np.ndarray:
+        return np.all((pts >= self.bmin) & (pts < self.bmax), axis=-1)
+
+
+def grid_for_scenario(sc: Scenario) -> GridSpec:
+    """W_box grown by the margin on the sides and the top; the table top bounds it below.
+    Voxel boundaries are aligned with W_box's lower corner."""
+    m = sc.mapper
+    lo = np.array(sc.scene.bbox_min, float)
+    hi = np.array(sc.scene.bbox_max, float)
+    lo_m = lo - np.array([m.margin, m.margin, 0.0])
+    hi_m = hi + m.margin
+    n_lo = np.ceil((lo - lo_m) / m.voxel_size - 1e-9)
+    bmin = lo - n_lo * m.voxel_size
+    dims = tuple(int(x) for x in np.ceil((hi_m - bmin) / m.voxel_size - 1e-9))
+    return GridSpec(bmin, float(m.voxel_size), dims)
+
+
+class OccupancyMap:
+    """Immutable occupancy map snapshot: log-odds grid, accumulated object points, counters."""
+
+    __slots__ = ("spec", "model", "logodds", "object_points", "scan_count", "wbox_min", "wbox_max")
+
+    def __init__(self, spec: GridSpec, model: SensorModel, logodds: np.ndarray | None = None,
+                 object_points: np.ndarray | None = None, scan_count: int = 0,
+                 wbox_min=None, wbox_max=None):
+        self.spec = spec
+        self.model = model
+        if logodds is None:
+            logodds = np.zeros(spec.dims, np.float32)
+        logodds.flags.writeable = False
+        self.logodds = logodds
+        if object_points is None:
+            object_points = np.zeros((0, 3), np.float32)
+        object_points.flags.writeable = False
+        self.object_points = object_points
+        self.scan_count = scan_count
+        self.wbox_min = spec.bmin if wbox_min is None else np.asarray(wbox_min, float)
+        self.wbox_max = spec.bmax if wbox_max is None else np.asarray(wbox_max, float)
+
+    # immutable: copies share the arrays (Drake clones abstract state on every update)
+    def __copy__(self):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    @staticmethod
+    def for_scenario(sc: Scenario) -> "OccupancyMap":
+        return OccupancyMap(grid_for_scenario(sc), SensorModel.from_config(sc.mapper),
+                            wbox_min=sc.scene.bbox_min, wbox_max=sc.scene.bbox_max)
+
+    # ---- classes -------------------------------------------------------------------
+    def classes(self) -> np.ndarray:
+        c = np.full(self.spec.dims, UNKNOWN, np.int8)
+        c[self.logodds < self.model.l_free] = FREE
+        c[self.logodds > self.model.l_occ] = OCCUPIED
+        return c
+
+    def counts(self) -> dict:
+        c = self.classes()
+        return {"unknown": int((c == UNKNOWN).sum()), "free": int((c == FREE).sum()),
+                "occupied": int((c == OCCUPIED).sum())}
+
+    def unknown_count(self) -> int:
+        lo = self.logodds
+        return int(np.count_nonzero((lo >= self.model.l_free) & (lo <= self.model.l_occ)))
+
+    def probabilities(self) -> np.ndarray:
+        return 1.0 / (1.0 + np.exp(-self.logodds.astype(np.float64)))
+
+    def voxel_volume(self) -> float:
+        return self.spec.res ** 3
+
+    # ---- update --------------------------------------------------------------------
+    def object_mask(self, points: np.ndarray, table_clearance: float) -> np.ndarray:
+        """Points that belong to the object: inside W_box and above the table clearance."""
+        lo = self.wbox_min.copy()
+        lo[2] += table_clearance
+        return np.all((points >= lo) & (points <= self.wbox_max), axis=1)
+
+    def integrate(self, origin: np.ndarray, points: np.ndarray, table_clearance: float,
+                  free_rays: np.ndarray | None = None) -> tuple["OccupancyMap", dict]:
+        """Returns (new map, stats). `points` are world-frame returns (non-finite rows must
+        have been dropped); those inside W_box above the table are hits and object points.
+        `free_rays` are end points of rays without a return (max range): misses only."""
+        points = np.ascontiguousarray(points, dtype=np.float64)
+        n_free = 0
+        if free_rays is not None and len(free_rays):
+            n_free = len(free_rays)
+            points = np.concatenate([points, np.asarray(free_rays, np.float64)])
+        origin = np.asarray(origin, np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"points must be (N, 3), got {points.shape}")
+        if not np.all(np.isfinite(points)) or not np.all(np.isfinite(origin)):
+            raise ValueError("scan has non-finite points or sensor origin; drop them before integrating")
+        hit = self.object_mask(points, table_clearance)
+        if n_free:
+            hit[len(points) - n_free:] = False
+        lo = np.array(self.logodds, copy=True)
+        m = self.model
+        n_upd = K.integrate_scan(lo, self.spec.bmin.astype(np.float64), self.spec.res, origin, points, hit,
+                                 m.l_hit, m.l_miss, m.l_min, m.l_max)
+        obj = np.concatenate([self.object_points, points[hit].astype(np.float32)])
+        new = OccupancyMap(self.spec, m, lo, obj, self.scan_count + 1, self.wbox_min, self.wbox_max)
+        return new, {"points": int(len(points) - n_free), "no_return_rays": n_free,
+                     "object_points": int(hit.sum()), "voxels_updated": int(n_upd)}
+
+    # ---- export --------------------------------------------------------------------
+    def save_npz(self, path):
+        np.savez_compressed(path, logodds=self.logodds, bmin=self.spec.bmin, res=self.spec.res,
+                            object_points=self.object_points, scan_count=self.scan_count,
+                            wbox_min=self.wbox_min, wbox_max=self.wbox_max,
+                            model=np.array(dc.astuple(self.model)))
+
+    @staticmethod
+    def load_npz(path) -> "OccupancyMap":
+        z = np.load(path)
+        lo = np.array(z["logodds"])
+        spec = GridSpec(np.array(z["bmin"]), float(z["res"]), tuple(int(x) for x in lo.shape))
+        return OccupancyMap(spec, SensorModel(*[float(x) for x in z["model"]]), lo,
+                            np.array(z["object_points"]), int(z["scan_count"]),
+                            z["wbox_min"], z["wbox_max"])
+
+
+def write_ply(path, points: np.ndarray):
+    """Binary little-endian PLY of xyz float32 points (written atomically)."""
+    pts = np.ascontiguousarray(points, dtype="<f4")
+    tmp = f"{path}.tmp"
+    with open(tmp, "wb") as f:
+        f.write(("ply\nformat binary_little_endian 1.0\n"
+                 f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+                 "end_header\n").encode())
+        f.write(pts.tobytes())
+    os.replace(tmp, path)

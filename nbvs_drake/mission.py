@@ -1,0 +1,123 @@
+"""Runs a reconstruction mission: the Drake Simulator advances the mission diagram until the
+planner stops (scan budget spent, no valid candidate, no path); then the results are written:
+summary.json, iterations.jsonl (written during the run), model.ply, map.npz, coverage.png."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .config import Scenario
+from .diagram import build_mission_diagram
+from .mapping.occupancy import write_ply
+from .systems.mission_recorder import IterationLog
+
+
+def _print_iteration(rec: dict):
+    plan = rec.get("plan", {})
+    scan = rec.get("scan", {})
+    status = plan.get("status", "")
+    if status == "ok":
+        what = f"g={plan['utility']:.4f} ({plan['path_kind']}, {plan['n_controls']} controls)"
+    else:
+        what = f"stop: {plan.get('stop_reason') or status}"
+    print(f"scan {rec['iteration']:2d}  coverage {rec['coverage']:.3f} (5 mm {rec['coverage_5mm']:.3f})  "
+          f"unknown {rec['unknown_voxels']:6d}  update {scan.get('update_s', 0) * 1e3:5.1f} ms  "
+          f"render {scan.get('render_s', 0) * 1e3:5.1f} ms  plan {plan.get('plan_s', 0):5.2f} s  {what}",
+          flush=True)
+
+
+def _write_json(path: Path, obj):
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2))
+    os.replace(tmp, path)
+
+
+def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict:
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import EventStatus
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    log = IterationLog(out / "iterations.jsonl", echo=_print_iteration if verbose else None)
+    md = build_mission_diagram(sc, out / "scene", log)
+    if verbose:
+        print(f"nbvs: scenario {sc.name!r}, seed {sc.seed}, object {sc.scene.object.kind}, "
+              f"planner {sc.planner.strategy}, writing to {out}", flush=True)
+    diagram = md.diagram
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    planner = md.systems["planner"]
+    rec = md.systems["recorder"]
+
+    def monitor(root_context):
+        pctx = planner.GetMyContextFromRoot(root_context)
+        stopped = planner.GetOutputPort("stopped").Eval(pctx)[0] > 0.5
+        if stopped and rec.written() >= planner.GetOutputPort("report").Eval(pctx).get("scan", 0):
+            return EventStatus.ReachedTermination(planner, "mission finished")
+        return EventStatus.Succeeded()
+
+    sim.set_monitor(monitor)
+    sim.Initialize()
+    sim.AdvanceTo(sc.mission.max_sim_time)
+    pctx = planner.GetMyContextFromRoot(ctx)
+    report = planner.GetOutputPort("report").Eval(pctx)
+    stop_reason = report.get("stop_reason") or "max_sim_time"
+    mapper = md.systems["mapper"]
+    omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(ctx))
+    monitor_sys = md.systems["monitor"]
+    counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))
+
+    write_ply(out / "model.ply", omap.object_points)
+    omap.save_npz(out / "map.npz")
+    records = log.records
+    from .plots import plot_coverage
+    plot_coverage(records, out / "coverage.png", title=f"{sc.name} (seed {sc.seed})")
+
+    collided, executed = int(counts[0]), int(counts[1])
+    plans = [r["plan"] for r in records if r["plan"].get("status") == "ok"]
+
+    def stage_total(key):
+        return float(sum(r["plan"].get("times", {}).get(key, 0.0) for r in records))
+
+    summary = {
+        "scenario": sc.name,
+        "seed": sc.seed,
+        "planner": sc.planner.strategy,
+        "coverage": records[-1]["coverage"] if records else 0.0,
+        "coverage_5mm": records[-1]["coverage_5mm"] if records else 0.0,
+        "coverage_voxel": records[-1]["coverage_voxel"] if records else 0.0,
+        "coverage_by_scan": [r["coverage"] for r in records],
+        "scans": int(omap.scan_count),
+        "collisions": collided,
+        "executed_trajectories": executed,
+        "collision_rate": collided / executed if executed else 0.0,
+        "stop_reason": stop_reason,
+        "distance": float(sum(p["factors"]["rho"] for p in plans)),
+        "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
+        "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
+        "object_points": int(len(omap.object_points)),
+        "sim_time_s": round(ctx.get_time(), 3),
+        "times_s": {
+            "plan": float(sum(p.get("plan_s", 0.0) for p in plans)),
+            "generate": stage_total("generate_s"),
+            "position_filter": stage_total("position_s"),
+            "visibility": stage_total("visibility_s"),
+            "motion_planning": stage_total("motion_s"),
+            "map_update": float(sum(r["scan"].get("update_s", 0.0) for r in records)),
+            "render": float(sum(r["scan"].get("render_s", 0.0) for r in records)),
+            "coverage_eval": float(sum(r["coverage_s"] for r in records)),
+        },
+        "wall_s": time.perf_counter() - t_start,
+    }
+    _write_json(out / "summary.json", summary)
+    if verbose:
+        print(f"done: coverage {summary['coverage']:.3f} after {summary['scans']} scans, "
+              f"{collided} collisions in {executed} trajectories, stop: {stop_reason}, "
+              f"{summary['wall_s']:.1f} s  -> {out}/summary.json", flush=True)
+    return summary

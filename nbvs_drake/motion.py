@@ -1,0 +1,183 @@
+"""Motion model of seed 000 §6: velocity controls u = [v, w_b, w_1..w_5] held for dt, Euler
+integration of the non-holonomic base, truncated Gaussian control noise; the steering
+function that turns a start/goal pair into controls; the weighted path length (eq. 8)."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+
+import numpy as np
+from scipy.special import ndtr, ndtri
+
+from .config import NoiseConfig, RobotConfig
+
+NQ, NU = 8, 7
+
+
+def wrap_angle(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+@dc.dataclass(frozen=True)
+class ControlSequence:
+    """tau = {u_1..u_m}: each row [v, w_b, w_1..w_5] is held for dt. plan_id identifies the
+    plan (0 = no motion, the initial state). `states` are the m+1 planned states."""
+    plan_id: int
+    dt: float
+    controls: np.ndarray
+    states: np.ndarray
+
+    def __deepcopy__(self, memo):  # immutable value
+        return self
+
+    @property
+    def m(self) -> int:
+        return len(self.controls)
+
+    @staticmethod
+    def empty(q: np.ndarray, dt: float = 0.1, plan_id: int = 0) -> "ControlSequence":
+        return ControlSequence(plan_id, dt, np.zeros((0, NU)), np.asarray(q, float)[None].copy())
+
+
+def euler_step(q: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+    """x_t = x + v cos(theta) dt, y_t = y + v sin(theta) dt, theta_t = theta + w_b dt,
+    q_i,t = q_i + w_i dt (seed 000 §6.2). Broadcasts over leading dimensions."""
+    q = np.asarray(q, float)
+    u = np.asarray(u, float)
+    out = np.array(q, copy=True)
+    th = q[..., 2]
+    out[..., 0] = q[..., 0] + u[..., 0] * np.cos(th) * dt
+    out[..., 1] = q[..., 1] + u[..., 0] * np.sin(th) * dt
+    out[..., 2] = th + u[..., 1] * dt
+    out[..., 3:] = q[..., 3:] + u[..., 2:] * dt
+    return out
+
+
+def rollout(q0: np.ndarray, controls: np.ndarray, dt: float) -> np.ndarray:
+    """States (m+1, 8) (or (..., m+1, 8) when controls have leading dims) of the Euler model."""
+    controls = np.asarray(controls, float)
+    q = np.broadcast_to(np.asarray(q0, float), controls.shape[:-2] + (NQ,)).copy()
+    out = np.empty(controls.shape[:-2] + (controls.shape[-2] + 1, NQ))
+    out[..., 0, :] = q
+    for t in range(controls.shape[-2]):
+        q = euler_step(q, controls[..., t, :], dt)
+        out[..., t + 1, :] = q
+    return out
+
+
+def path_length(states: np.ndarray, weights) -> float:
+    """rho = sum_i sqrt(sum_j w_j (x_i(a_j) - x_{i-1}(a_j))^2), eq. 8 (base angle wrapped)."""
+    d = np.diff(np.asarray(states, float), axis=0)
+    d[:, 2] = wrap_angle(d[:, 2])
+    return float(np.sum(np.sqrt(np.sum(np.asarray(weights) * d * d, axis=1))))
+
+
+# --------------------------------------------------------------------------------------
+# Noise
+# --------------------------------------------------------------------------------------
+
+
+def noise_sigmas(noise: NoiseConfig) -> np.ndarray:
+    return np.array([noise.sigma_v, noise.sigma_w] + list(noise.sigma_arm), float)
+
+
+def sample_truncated_normal(rng: np.random.Generator, sigma: np.ndarray, beta: float, shape) -> np.ndarray:
+    """Zero-mean normal samples with standard deviations `sigma` (broadcast over the last
+    axis), truncated to [-beta sigma, beta sigma] by inverse-CDF sampling."""
+    lo = ndtr(-beta)
+    u = rng.uniform(lo, 1.0 - lo, size=tuple(shape) + (len(sigma),))
+    return ndtri(u) * sigma
+
+
+def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> np.ndarray:
+    """Log density of the truncated normal per component; components with sigma = 0 are
+    deterministic and contribute 0. Summed over the last axis."""
+    sigma = np.asarray(sigma, float)
+    active = sigma > 0
+    s = np.where(active, sigma, 1.0)
+    z = eps / s
+    norm = np.log(ndtr(beta) - ndtr(-beta))
+    lp = -0.5 * z * z - np.log(s) - 0.5 * math.log(2 * math.pi) - norm
+    return np.sum(np.where(active, lp, 0.0), axis=-1)
+
+
+# --------------------------------------------------------------------------------------
+# Steering
+# --------------------------------------------------------------------------------------
+
+
+def _phase(delta: np.ndarray, vmax: np.ndarray, dt: float) -> np.ndarray:
+    """Constant-velocity controls covering `delta` (per control component) exactly, each
+    within its limit vmax; returns (n, NU) rows."""
+    delta = np.asarray(delta, float)
+    need = np.abs(delta) / (vmax * dt)
+    n = int(math.ceil(np.max(need) - 1e-9)) if np.any(delta != 0) else 0
+    if n == 0:
+        return np.zeros((0, NU))
+    return np.tile(delta / (n * dt), (n, 1))
+
+
+def _base_phases(q0, q1, rc: RobotConfig):
+    """Turn-drive-turn for the in-place turning base, as (d_theta1, d_drive, d_theta2),
+    choosing forward or backward driving by the smaller total rotation."""
+    dx, dy = q1[0] - q0[0], q1[1] - q0[1]
+    d = math.hypot(dx, dy)
+    if d < 1e-4:
+        return [(float(wrap_angle(q1[2] - q0[2])), 0.0, 0.0)]
+    phi = math.atan2(dy, dx)
+    fwd = (float(wrap_angle(phi - q0[2])), d, float(wrap_angle(q1[2] - phi)))
+    back = (float(wrap_angle(phi + math.pi - q0[2])), -d, float(wrap_angle(q1[2] - phi - math.pi)))
+    cost = lambda p: abs(p[0]) + abs(p[2])  # noqa: E731
+    return [fwd, back] if cost(fwd) <= cost(back) else [back, fwd]
+
+
+def _base_controls(ph, rc: RobotConfig) -> np.ndarray:
+    dt = rc.control_dt
+    vmax = np.array([rc.max_linear_velocity, rc.max_angular_velocity] + [rc.max_arm_velocity] * 5)
+    rows = []
+    for k, val in enumerate(ph):
+        delta = np.zeros(NU)
+        if k == 1:
+            delta[0] = val
+        else:
+            delta[1] = val
+        rows.append(_phase(delta, vmax, dt))
+    return np.concatenate(rows) if rows else np.zeros((0, NU))
+
+
+def _arm_controls(dq: np.ndarray, rc: RobotConfig, n_min: int = 0) -> np.ndarray:
+    """Arm velocities moving by dq in max(n_min, needed) steps at constant velocity."""
+    dt = rc.control_dt
+    need = int(math.ceil(np.max(np.abs(dq)) / (rc.max_arm_velocity * dt) - 1e-9)) if np.any(dq != 0) else 0
+    n = max(need, n_min)
+    out = np.zeros((n, NU))
+    if n:
+        out[:, 2:] = dq / (n * dt)
+    return out
+
+
+#: arm pointing straight up (J2 = 90 deg): the compact pose for driving among obstacles
+TUCK_ARM = np.array([np.nan, math.pi / 2, 0.0, 0.0, np.nan])
+
+
+def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np.ndarray]]:
+    """Candidate control sequences from q0 to q1, shortest first. Each is exact under the
+    noise-free Euler model (turns and drives are separate phases; the arm moves at constant
+    velocity): 'together' (arm during the base motion), 'arm_first', 'base_first', and 'tuck'
+    (arm up, drive, arm down), each with forward and backward driving."""
+    q0 = np.asarray(q0, float)
+    q1 = np.asarray(q1, float)
+    dq = q1[3:] - q0[3:]
+    out = []
+    for ph in _base_phases(q0, q1, rc):
+        base = _base_controls(ph, rc)
+        tog = _arm_controls(dq, rc, n_min=len(base))
+        tog[: len(base), :2] = base[:, :2]
+        out.append(("together", tog))
+        out.append(("arm_first", np.concatenate([_arm_controls(dq, rc), base])))
+        out.append(("base_first", np.concatenate([base, _arm_controls(dq, rc)])))
+        tuck = np.where(np.isnan(TUCK_ARM), q0[3:], TUCK_ARM)
+        out.append(("tuck", np.concatenate([_arm_controls(tuck - q0[3:], rc), base,
+                                            _arm_controls(q1[3:] - tuck, rc)])))
+    return out

@@ -1,0 +1,187 @@
+"""The object to reconstruct: Newell's Utah teapot (tessellated from its 32 bicubic Bezier
+patches) or any OBJ/PLY/STL mesh, placed on the table; ground-truth surface samples."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+from pathlib import Path
+
+import numpy as np
+
+from . import MODELS_DIR
+from .config import Scenario
+from .errors import MeshError, ScenarioError
+
+
+@dc.dataclass
+class ObjectMesh:
+    """A triangle mesh in the world frame (metres)."""
+    vertices: np.ndarray  # (V, 3) float64
+    triangles: np.ndarray  # (T, 3) int32
+
+    @property
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.vertices.min(axis=0), self.vertices.max(axis=0)
+
+    def write_obj(self, path: Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "w") as f:
+            f.write("# nbvs_drake object mesh (world frame, metres)\n")
+            np.savetxt(f, self.vertices, fmt="v %.6f %.6f %.6f")
+            np.savetxt(f, self.vertex_normals(), fmt="vn %.6f %.6f %.6f")
+            t = self.triangles + 1
+            np.savetxt(f, np.repeat(t, 2, axis=1), fmt="f %d//%d %d//%d %d//%d")
+        return path
+
+    def vertex_normals(self) -> np.ndarray:
+        """Area-weighted vertex normals (unit; +z where undefined)."""
+        V, T = self.vertices, self.triangles
+        fn = np.cross(V[T[:, 1]] - V[T[:, 0]], V[T[:, 2]] - V[T[:, 0]])
+        n = np.zeros_like(V)
+        for k in range(3):
+            np.add.at(n, T[:, k], fn)
+        norm = np.linalg.norm(n, axis=1)
+        n[norm < 1e-15] = (0.0, 0.0, 1.0)
+        norm[norm < 1e-15] = 1.0
+        return n / norm[:, None]
+
+
+# --------------------------------------------------------------------------------------
+# Utah teapot
+# --------------------------------------------------------------------------------------
+
+
+def load_teapot_patches(path: Path | None = None) -> np.ndarray:
+    """Returns the control points of the 32 patches, shape (32, 4, 4, 3), Newell's units."""
+    path = Path(path or MODELS_DIR / "utah_teapot_newell.txt")
+    lines = [ln.split() for ln in path.read_text().splitlines() if ln and not ln.startswith("#")]
+    nv = int(lines[0][1])
+    verts = np.array([[float(t) for t in ln] for ln in lines[1:1 + nv]])
+    npatch = int(lines[1 + nv][1])
+    idx = np.array([[int(t) for t in ln] for ln in lines[2 + nv:2 + nv + npatch]]) - 1
+    return verts[idx].reshape(npatch, 4, 4, 3)
+
+
+def _bernstein(t: np.ndarray) -> np.ndarray:
+    t = np.asarray(t, float)
+    s = 1.0 - t
+    return np.stack([s ** 3, 3 * s * s * t, 3 * s * t * t, t ** 3], axis=-1)
+
+
+def tessellate_teapot(n: int = 12) -> ObjectMesh:
+    """Evaluates each Bezier patch on an (n+1)x(n+1) grid and triangulates it. Degenerate
+    triangles (the patches that collapse to a point at the lid knob and bottom centre)
+    are dropped. Units are Newell's (z up)."""
+    patches = load_teapot_patches()
+    b = _bernstein(np.linspace(0.0, 1.0, n + 1))  # (n+1, 4)
+    verts, tris = [], []
+    for P in patches:
+        grid = np.einsum("ui,vj,ijk->uvk", b, b, P).reshape(-1, 3)
+        base = sum(len(v) for v in verts)
+        verts.append(grid)
+        ii, jj = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        a = (ii * (n + 1) + jj).ravel()
+        t1 = np.stack([a, a + n + 1, a + n + 2], axis=1)
+        t2 = np.stack([a, a + n + 2, a + 1], axis=1)
+        tris.append(np.concatenate([t1, t2]) + base)
+    V = np.concatenate(verts)
+    T = np.concatenate(tris)
+    # drop degenerate triangles
+    e1 = V[T[:, 1]] - V[T[:, 0]]
+    e2 = V[T[:, 2]] - V[T[:, 0]]
+    area = 0.5 * np.linalg.norm(np.cross(e1, e2), axis=1)
+    T = T[area > 1e-12]
+    return ObjectMesh(V, T.astype(np.int32))
+
+
+# --------------------------------------------------------------------------------------
+# Meshes from files
+# --------------------------------------------------------------------------------------
+
+
+def load_mesh_file(path: Path) -> ObjectMesh:
+    """Reads an OBJ/PLY/STL triangle mesh with Open3D."""
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"object mesh not found: {path}")
+    if path.suffix.lower() not in (".obj", ".ply", ".stl", ".off", ".gltf", ".glb"):
+        raise MeshError(f"unsupported mesh format {path.suffix!r} for {path} (use OBJ, PLY or STL)")
+    import open3d as o3d
+    try:
+        m = o3d.io.read_triangle_mesh(str(path))
+    except Exception as e:  # pragma: no cover - open3d rarely raises
+        raise MeshError(f"cannot read object mesh {path}: {e}") from None
+    V = np.asarray(m.vertices, dtype=float)
+    T = np.asarray(m.triangles, dtype=np.int32)
+    if len(V) == 0 or len(T) == 0:
+        raise MeshError(f"object mesh {path} is unreadable or has no triangles")
+    if not np.all(np.isfinite(V)):
+        raise MeshError(f"object mesh {path} has non-finite vertex coordinates")
+    return ObjectMesh(V, T)
+
+
+# --------------------------------------------------------------------------------------
+# Placement and ground truth
+# --------------------------------------------------------------------------------------
+
+
+def build_object(sc: Scenario) -> ObjectMesh:
+    """The object of the scenario in the world frame: scaled, rotated by yaw, its footprint
+    centred at `xy` and its lowest point on the table top. Raises if it leaves W_box."""
+    o = sc.scene.object
+    if o.kind == "teapot":
+        mesh = tessellate_teapot(o.tessellation)
+    else:
+        p = Path(o.mesh)
+        if not p.is_absolute():
+            p = Path(sc.base_dir or ".") / p
+        mesh = load_mesh_file(p)
+    V = mesh.vertices.copy()
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    if o.size > 0:
+        V *= o.size / float(np.max(hi - lo))
+    else:
+        V *= o.scale
+    c, s = math.cos(math.radians(o.yaw_deg)), math.sin(math.radians(o.yaw_deg))
+    V = V @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]).T
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    V += np.array([o.xy[0] - centre[0], o.xy[1] - centre[1], sc.scene.table_height - lo[2]])
+    out = ObjectMesh(V, mesh.triangles)
+    check_inside_bbox(out, sc)
+    return out
+
+
+def check_inside_bbox(mesh: ObjectMesh, sc: Scenario, tol: float = 1e-6):
+    lo, hi = mesh.bounds
+    bmin, bmax = np.array(sc.scene.bbox_min), np.array(sc.scene.bbox_max)
+    if np.any(lo < bmin - tol) or np.any(hi > bmax + tol):
+        raise ScenarioError(
+            "the object does not fit in the bounding box W_box: object spans "
+            f"{np.round(lo, 3).tolist()}..{np.round(hi, 3).tolist()}, W_box is "
+            f"{list(sc.scene.bbox_min)}..{list(sc.scene.bbox_max)}")
+
+
+def sample_surface(mesh: ObjectMesh, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Uniform area-weighted samples on the mesh surface, shape (n, 3)."""
+    V, T = mesh.vertices, mesh.triangles
+    a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    tri = rng.choice(len(T), size=n, p=area / area.sum())
+    r1 = np.sqrt(rng.random(n))
+    r2 = rng.random(n)
+    w0, w1, w2 = 1 - r1, r1 * (1 - r2), r1 * r2
+    return w0[:, None] * a[tri] + w1[:, None] * b[tri] + w2[:, None] * c[tri]
+
+
+def ground_truth_points(mesh: ObjectMesh, sc: Scenario, rng: np.random.Generator) -> np.ndarray:
+    """Ground-truth surface samples for coverage. Samples within `mapper.table_clearance` of
+    the table top are left out: that band (and the underside resting on the table) is
+    removed from every scan by the cloud filter volume, so no planner can ever cover it."""
+    n = sc.scene.gt_points
+    pts = sample_surface(mesh, 2 * n, rng)
+    keep = pts[:, 2] >= sc.scene.table_height + sc.mapper.table_clearance
+    pts = pts[keep]
+    return pts[:n]

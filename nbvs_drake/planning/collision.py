@@ -1,0 +1,63 @@
+"""pos(x) on Drake: the planner's collision model (robot + known environment + W_box as the
+obstacle of the unknown region) checked with `pydrake.planning.SceneGraphCollisionChecker`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config import Scenario
+from ..robot import RobotKinematics, add_robot
+from ..scene import add_environment
+
+
+class CollisionModel:
+    """Batched configuration checks in the robot state layout q = [x, y, theta, q1..q5].
+
+    with_object_mesh: the true object (for detecting real collisions of the executed
+    motion) instead of the planner's conservative W_box obstacle.
+    """
+
+    def __init__(self, sc: Scenario, kin: RobotKinematics, *, object_obj: str | None = None,
+                 padding: float = 0.0):
+        from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
+        rdb = RobotDiagramBuilder(time_step=0.0)
+        plant = rdb.plant()
+        robot = add_robot(plant, sc.robot.urdf)
+        add_environment(plant, sc, object_obj=object_obj, add_wbox_obstacle=object_obj is None,
+                        visual=False)
+        plant.Finalize()
+        self.diagram = rdb.Build()
+        self.kin = kin
+        self.checker = SceneGraphCollisionChecker(
+            model=self.diagram, robot_model_instances=[robot], edge_step_size=0.02,
+            env_collision_padding=padding, self_collision_padding=0.0)
+        self.n_checks = 0
+
+    def free(self, q: np.ndarray, parallelize: bool = True) -> np.ndarray:
+        """Boolean (N,) collision-free flags for states (N, 8)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        if len(q) == 0:
+            return np.zeros(0, bool)
+        pos = self.kin.to_positions(q)
+        self.n_checks += len(q)
+        if len(q) == 1:
+            return np.array([self.checker.CheckConfigCollisionFree(pos[0])])
+        res = self.checker.CheckConfigsCollisionFree(list(pos), parallelize=parallelize)
+        return np.asarray(res, bool)
+
+    def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
+        """Checks the states of a path and interpolated states in between (linear in q, so
+        that no point of the robot moves more than about `max_step` between checks)."""
+        states = np.asarray(states, float)
+        if len(states) == 1:
+            return bool(self.free(states)[0])
+        d = np.abs(np.diff(states, axis=0))
+        # reach of the arm: base translation + rotation x 1.4 m lever, joints x 0.7 m
+        move = np.hypot(d[:, 0], d[:, 1]) + 1.4 * d[:, 2] + 0.7 * d[:, 3:].sum(axis=1)
+        subs = np.maximum(1, np.ceil(move / max_step)).astype(int)
+        pts = [states[:1]]
+        for i, n in enumerate(subs):
+            a = np.linspace(0, 1, n + 1)[1:, None]
+            pts.append(states[i] + a * (states[i + 1] - states[i]))
+        allq = np.concatenate(pts)
+        return bool(np.all(self.free(allq)))

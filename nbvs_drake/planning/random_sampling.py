@@ -1,0 +1,194 @@
+"""Seed 000's random sampling NBVS planner (§7.6): generate states whose director ray meets
+W_box, position filter (Drake collision), visibility (ray casting in the map), registration
+filter, surface factor, rank, keep the top k, plan a path to each, utility
+g = pos * reg * sur * dist; the best candidate is the NBVS."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import time
+
+import numpy as np
+
+from ..config import Scenario, resolve_sensor
+from ..mapping import kernels as K
+from ..mapping.occupancy import OccupancyMap
+from ..motion import path_length, rollout, steer
+from ..robot import RobotKinematics
+from ..sensor import ray_directions
+from .collision import CollisionModel
+
+
+class ViewEvaluator:
+    """Scores robot states by simulating their scans in the map (batch numba kernel)."""
+
+    def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None):
+        self.kin = kin
+        self.stride = stride or sc.planner.ray_stride
+        self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
+        import numba
+        self.n_chunks = max(1, numba.get_num_threads())
+
+    def evaluate(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
+        """Metrics (N, K.N_METRICS) of the states q (N, 8); see kernels.M_*."""
+        q = np.atleast_2d(q)
+        if len(q) == 0:
+            return np.zeros((0, K.N_METRICS))
+        X = self.kin.camera_poses(q)
+        return self.evaluate_poses(omap, X)
+
+    def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
+        pos = np.ascontiguousarray(X[:, :3, 3])
+        rot = np.ascontiguousarray(X[:, :3, :3])
+        m = omap.model
+        return K.evaluate_views(np.ascontiguousarray(omap.logodds, dtype=np.float32),
+                                omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot,
+                                self.dirs, self.t_near, self.t_far, m.l_free, m.l_occ,
+                                min(self.n_chunks, len(pos)))
+
+
+@dc.dataclass
+class PlanResult:
+    status: str  #: "ok", "no_candidate" (nothing passed the filters) or "no_path"
+    q_goal: np.ndarray | None = None
+    controls: np.ndarray | None = None  #: (m, 7)
+    states: np.ndarray | None = None  #: (m+1, 8) planned states
+    path_kind: str = ""
+    utility: float = 0.0
+    factors: dict = dc.field(default_factory=dict)
+    stages: dict = dc.field(default_factory=dict)  #: candidates surviving each filter
+    times: dict = dc.field(default_factory=dict)  #: seconds per stage
+
+    def to_json(self) -> dict:
+        d = {"status": self.status, "utility": self.utility, "factors": self.factors,
+             "stages": self.stages, "times": self.times, "path_kind": self.path_kind}
+        if self.q_goal is not None:
+            d["q_goal"] = [round(float(v), 6) for v in self.q_goal]
+            d["n_controls"] = int(len(self.controls))
+        return d
+
+
+def registration_overlap(met: np.ndarray) -> np.ndarray:
+    """Share of the simulated scan's returns in the map that land on known surface:
+    oc_rays / (oc_rays + un_rays). reg(x) = 1 when this exceeds h (seed 000 eq. 5, measured
+    per ray: ICP needs overlapping points, and distinct-voxel counts let the large side
+    faces of the occlusion shadow behind a first scan veto every nearby view)."""
+    oc, un = met[:, K.M_OC_RAYS], met[:, K.M_UN_RAYS]
+    tot = oc + un
+    return np.where(tot > 0, oc / np.maximum(tot, 1), 0.0)
+
+
+def director_ray_hits(X: np.ndarray, bmin, bmax, t_near: float, t_far: float) -> np.ndarray:
+    """Whether each camera's optical axis meets the box within [t_near, t_far]."""
+    o = X[:, :3, 3]
+    d = X[:, :3, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta = (np.asarray(bmin) - o) * inv
+        tb = (np.asarray(bmax) - o) * inv
+    t0 = np.nanmax(np.minimum(ta, tb), axis=1)
+    t1 = np.nanmin(np.maximum(ta, tb), axis=1)
+    return (t0 <= t1) & (t1 >= t_near) & (t0 <= t_far)
+
+
+class RandomSamplingPlanner:
+    def __init__(self, sc: Scenario, kin: RobotKinematics, collision: CollisionModel,
+                 evaluator: ViewEvaluator | None = None):
+        self.sc = sc
+        self.kin = kin
+        self.collision = collision
+        self.evaluator = evaluator or ViewEvaluator(kin, sc)
+        s = resolve_sensor(sc.sensor)
+        self.z_near, self.z_far = s.z_near, s.z_far
+
+    def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        lo, hi = self.sc.robot.xy_bounds
+        q = np.empty((n, 8))
+        q[:, 0:2] = rng.uniform(lo, hi, size=(n, 2))
+        q[:, 2] = rng.uniform(-np.pi, np.pi, size=n)
+        q[:, 3:] = rng.uniform(self.kin.arm_lower, self.kin.arm_upper, size=(n, 5))
+        return q
+
+    def generate(self, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+        """Step 1: uniform samples of the state space whose director ray meets W_box."""
+        p = self.sc.planner
+        bmin, bmax = self.sc.scene.bbox_min, self.sc.scene.bbox_max
+        kept, raw = [], 0
+        need = p.n_candidates
+        while need > 0 and raw < p.max_generation_factor * p.n_candidates:
+            batch = self.sample_states(rng, max(4 * need, 1024))
+            raw += len(batch)
+            ok = director_ray_hits(self.kin.camera_poses(batch), bmin, bmax, self.z_near, self.z_far)
+            sel = batch[ok][:need]
+            kept.append(sel)
+            need -= len(sel)
+        q = np.concatenate(kept) if kept else np.zeros((0, 8))
+        return q, raw
+
+    def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator) -> PlanResult:
+        p = self.sc.planner
+        times, stages = {}, {}
+        t = time.perf_counter()
+        cand, raw = self.generate(rng)
+        stages["sampled"] = raw
+        stages["director_ray"] = len(cand)
+        times["generate_s"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        cand = cand[self.collision.free(cand)]
+        stages["position"] = len(cand)
+        times["position_s"] = time.perf_counter() - t
+
+        t = time.perf_counter()
+        met = self.evaluator.evaluate(omap, cand)
+        times["visibility_s"] = time.perf_counter() - t
+        un, oc = met[:, K.M_UN_O], met[:, K.M_OC_O]
+        stages["visibility"] = int(np.count_nonzero(met[:, K.M_RAYS] > 0))
+        overlap = registration_overlap(met)
+        reg = overlap > p.overlap_h
+        stages["registration"] = int(reg.sum())
+        un_total = max(omap.unknown_count(), 1)
+        sur = un / un_total
+        keep = reg & (sur > 0)
+        stages["surface"] = int(keep.sum())
+        if not np.any(keep):
+            return PlanResult("no_candidate", stages=stages, times=times)
+
+        idx = np.flatnonzero(keep)
+        idx = idx[np.argsort(-sur[idx], kind="stable")][: p.top_k]
+        stages["top_k"] = len(idx)
+
+        t = time.perf_counter()
+        best = None
+        n_path = 0
+        for i in idx:
+            found = self.connect(q_current, cand[i])
+            if found is None:
+                continue
+            n_path += 1
+            kind, controls, states = found
+            rho = path_length(states, p.weights)
+            dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
+            g = 1.0 * 1.0 * sur[i] * dist
+            if best is None or g > best.utility:
+                best = PlanResult("ok", cand[i], controls, states, kind, float(g), {
+                    "pos": 1.0, "reg": 1.0, "sur": float(sur[i]), "dist": float(dist), "rho": float(rho),
+                    "un_o": int(un[i]), "oc_o": int(oc[i]), "overlap": float(overlap[i]),
+                    "un_total": int(un_total)})
+        times["motion_s"] = time.perf_counter() - t
+        stages["with_path"] = n_path
+        if best is None:
+            return PlanResult("no_path", stages=stages, times=times)
+        best.stages, best.times = stages, times
+        return best
+
+    def connect(self, q0: np.ndarray, q1: np.ndarray):
+        """First collision-free steering path from q0 to q1: (kind, controls, states) or None."""
+        dt = self.sc.robot.control_dt
+        for kind, controls in steer(q0, q1, self.sc.robot):
+            states = rollout(q0, controls, dt)
+            if not np.all(self.kin.arm_within_limits(states)):
+                continue
+            if self.collision.path_free(states):
+                return kind, controls, states
+        return None

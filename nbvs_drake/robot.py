@@ -1,0 +1,128 @@
+"""The PatrolBot + Katana 6M180 model: loading the URDF into a MultibodyPlant, the state
+layout q = [x, y, theta, q1..q5], joint limits, and a vectorised forward kinematics of the
+camera frame that is read off the same plant (tests check it against Drake's)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from . import MODELS_DIR
+from .errors import ScenarioError
+
+ARM_JOINTS = ["katana_j1", "katana_j2", "katana_j3", "katana_j4", "katana_j5"]
+BASE_JOINT = "base"
+CAMERA_BODY = "camera_optical"
+NQ = 8  # [x, y, theta, q1..q5]
+NU = 7  # [v, w_base, w1..w5]
+
+
+def urdf_path(name: str) -> Path:
+    p = Path(name)
+    if not p.is_absolute():
+        p = MODELS_DIR / p
+    if not p.is_file():
+        raise ScenarioError(f"robot URDF not found: {p}")
+    return p
+
+
+def add_robot(plant, urdf: str):
+    """Parses the robot into `plant` (not finalized). Returns its model instance."""
+    from pydrake.multibody.parsing import Parser
+    (instance,) = Parser(plant).AddModels(str(urdf_path(urdf)))
+    return instance
+
+
+def state_to_positions_index(plant) -> np.ndarray:
+    """idx such that plant_positions[idx] = q (the robot state layout)."""
+    base = plant.GetJointByName(BASE_JOINT)
+    idx = [base.position_start() + i for i in range(3)]
+    idx += [plant.GetJointByName(j).position_start() for j in ARM_JOINTS]
+    return np.array(idx, dtype=int)
+
+
+def _X(rt) -> np.ndarray:
+    return np.asarray(rt.GetAsMatrix4())
+
+
+class RobotKinematics:
+    """Vectorised kinematics of the camera frame, with the fixed transforms read off the
+    URDF through Drake (so it cannot drift from the plant used for rendering/collision)."""
+
+    def __init__(self, urdf: str = "patrolbot_katana.urdf"):
+        from pydrake.multibody.plant import MultibodyPlant
+        plant = MultibodyPlant(0.0)
+        add_robot(plant, urdf)
+        plant.Finalize()
+        self.plant = plant
+        self.q_index = state_to_positions_index(plant)
+        self.n_positions = plant.num_positions()
+        self.joint_fixed = []  # (X_parent_jointframe, axis) per arm joint
+        lower, upper, vmax = [], [], []
+        for name in ARM_JOINTS:
+            j = plant.GetJointByName(name)
+            X_PF = _X(j.frame_on_parent().GetFixedPoseInBodyFrame())
+            X_CM = _X(j.frame_on_child().GetFixedPoseInBodyFrame())
+            assert np.allclose(X_CM, np.eye(4)), "URDF child frames are expected at the link origin"
+            self.joint_fixed.append((X_PF, np.asarray(j.revolute_axis(), float)))
+            lower.append(j.position_lower_limits()[0])
+            upper.append(j.position_upper_limits()[0])
+            vmax.append(j.velocity_upper_limits()[0])
+        self.arm_lower = np.array(lower)
+        self.arm_upper = np.array(upper)
+        self.arm_velocity_limits = np.array(vmax)
+        cam = plant.GetBodyByName(CAMERA_BODY)
+        ctx = plant.CreateDefaultContext()
+        link5 = plant.GetBodyByName("katana_link5")
+        self.X_L5C = _X(plant.CalcRelativeTransform(ctx, link5.body_frame(), cam.body_frame()))
+        self._ctx = ctx
+
+    # ---- layout --------------------------------------------------------------------
+    def to_positions(self, q: np.ndarray) -> np.ndarray:
+        q = np.asarray(q, float)
+        out = np.zeros(q.shape[:-1] + (self.n_positions,))
+        out[..., self.q_index] = q
+        return out
+
+    def clip_arm(self, q: np.ndarray) -> np.ndarray:
+        q = np.array(q, float)
+        q[..., 3:] = np.clip(q[..., 3:], self.arm_lower, self.arm_upper)
+        return q
+
+    def arm_within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+        q = np.asarray(q, float)
+        return np.all((q[..., 3:] >= self.arm_lower - tol) & (q[..., 3:] <= self.arm_upper + tol), axis=-1)
+
+    # ---- forward kinematics --------------------------------------------------------
+    def camera_poses(self, q: np.ndarray) -> np.ndarray:
+        """X_WC (N, 4, 4) of the camera optical frame (+z forward) for states q (N, 8)."""
+        q = np.atleast_2d(np.asarray(q, float))
+        n = len(q)
+        X = np.zeros((n, 4, 4))
+        c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
+        X[:, 0, 0], X[:, 0, 1], X[:, 1, 0], X[:, 1, 1] = c, -s, s, c
+        X[:, 2, 2] = X[:, 3, 3] = 1.0
+        X[:, 0, 3], X[:, 1, 3] = q[:, 0], q[:, 1]
+        for i, (X_PF, axis) in enumerate(self.joint_fixed):
+            X = X @ X_PF
+            X = X @ _axis_rotation(axis, q[:, 3 + i])
+        return X @ self.X_L5C
+
+    def camera_pose_drake(self, q: np.ndarray) -> np.ndarray:
+        """The same through Drake's MultibodyPlant (slow; for checks)."""
+        self.plant.SetPositions(self._ctx, self.to_positions(q))
+        cam = self.plant.GetBodyByName(CAMERA_BODY)
+        return _X(self.plant.EvalBodyPoseInWorld(self._ctx, cam))
+
+
+def _axis_rotation(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Homogeneous rotations about a unit axis, (N, 4, 4) (Rodrigues)."""
+    k = axis / np.linalg.norm(axis)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    s, c = np.sin(angles), np.cos(angles)
+    R = np.eye(3)[None] + s[:, None, None] * K[None] + (1 - c)[:, None, None] * (K @ K)[None]
+    out = np.zeros((len(angles), 4, 4))
+    out[:, :3, :3] = R
+    out[:, 3, 3] = 1.0
+    return out

@@ -1,0 +1,94 @@
+"""The known environment (floor, table, optional chairs), the object, and the object
+bounding box W_box, registered on a MultibodyPlant so that rendering (SceneGraph +
+RenderEngineVtk) and collision queries use one model."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+
+import numpy as np
+
+from .config import Scenario
+
+TABLE_THICKNESS = 0.04
+LEG = 0.04
+
+
+@dc.dataclass
+class Box:
+    name: str
+    center: tuple[float, float, float]
+    size: tuple[float, float, float]
+    yaw: float = 0.0
+    color: tuple[float, float, float, float] = (0.55, 0.4, 0.25, 1.0)
+
+
+def environment_boxes(sc: Scenario) -> list[Box]:
+    """Floor, table top and legs, and (clutter = chairs) nine chairs around the table."""
+    s = sc.scene
+    tx, ty = s.table_size
+    h = s.table_height
+    boxes = [Box("floor", (0.0, 0.0, -0.05), (8.0, 8.0, 0.1), color=(0.8, 0.8, 0.8, 1.0)),
+             Box("table_top", (0.0, 0.0, h - TABLE_THICKNESS / 2), (tx, ty, TABLE_THICKNESS))]
+    leg_h = h - TABLE_THICKNESS
+    for i, (sx, sy) in enumerate([(1, 1), (1, -1), (-1, 1), (-1, -1)]):
+        boxes.append(Box(f"table_leg{i}", (sx * (tx / 2 - LEG), sy * (ty / 2 - LEG), leg_h / 2),
+                         (LEG, LEG, leg_h)))
+    if s.clutter == "chairs":
+        boxes += chair_boxes(sc)
+    return boxes
+
+
+def chair_boxes(sc: Scenario) -> list[Box]:
+    """Nine chairs on a ring around the table (seed 000 Fig. 13): seat + backrest each."""
+    out = []
+    r = 1.25
+    for k in range(9):
+        a = 2 * math.pi * k / 9 + math.pi / 9
+        cx, cy = r * math.cos(a), r * math.sin(a)
+        yaw = a + math.pi  # facing the table
+        out.append(Box(f"chair{k}_seat", (cx, cy, 0.225), (0.42, 0.42, 0.45), yaw, (0.2, 0.3, 0.6, 1)))
+        bx, by = cx + 0.19 * math.cos(a), cy + 0.19 * math.sin(a)
+        out.append(Box(f"chair{k}_back", (bx, by, 0.65), (0.04, 0.42, 0.4), yaw, (0.2, 0.3, 0.6, 1)))
+    return out
+
+
+def _pose(center, yaw=0.0):
+    from pydrake.math import RigidTransform, RollPitchYaw
+    return RigidTransform(RollPitchYaw(0, 0, yaw), np.asarray(center, float))
+
+
+def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
+                    add_wbox_obstacle: bool = False, collision: bool = True, visual: bool = True):
+    """Registers the environment on the world body of `plant` (before Finalize).
+
+    object_obj: path of the object's OBJ (world-frame vertices) to add as visual (rendered)
+        and collision (convex hull) geometry; None leaves the object out (the planner's
+        model: the object is unknown to it).
+    add_wbox_obstacle: add W_box as a collision-only box (O = W_obj u W_unk u O_env is
+        inside W_box u O_env, so this is the conservative obstacle of the unknown region).
+    """
+    from pydrake.geometry import Box as DBox, Mesh
+    from pydrake.multibody.plant import CoulombFriction
+    from pydrake.math import RigidTransform
+
+    world = plant.world_body()
+    friction = CoulombFriction(0.5, 0.5)
+    for b in environment_boxes(sc):
+        X = _pose(b.center, b.yaw)
+        shape = DBox(*b.size)
+        if visual:
+            plant.RegisterVisualGeometry(world, X, shape, b.name, np.array(b.color))
+        if collision:
+            plant.RegisterCollisionGeometry(world, X, shape, b.name, friction)
+    if object_obj is not None:
+        mesh = Mesh(str(object_obj), 1.0)
+        if visual:
+            plant.RegisterVisualGeometry(world, RigidTransform(), mesh, "object",
+                                         np.array([0.85, 0.85, 0.9, 1.0]))
+        if collision:
+            plant.RegisterCollisionGeometry(world, RigidTransform(), mesh, "object", friction)
+    if add_wbox_obstacle:
+        lo, hi = np.array(sc.scene.bbox_min), np.array(sc.scene.bbox_max)
+        plant.RegisterCollisionGeometry(world, _pose(0.5 * (lo + hi)), DBox(*(hi - lo)), "W_box", friction)

@@ -1,0 +1,44 @@
+"""Depth sensor model shared by the rendered camera (RgbdSensor) and the planner's simulated
+scans (the ray directions of the view-evaluation kernel)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .config import SensorConfig, resolve_sensor
+
+
+def intrinsics(sensor: SensorConfig) -> tuple[int, int, float, float, float, float]:
+    """(width, height, fx, fy, cx, cy) of the pinhole model with the sensor's FOV."""
+    s = resolve_sensor(sensor)
+    fx = s.width / 2.0 / math.tan(math.radians(s.fov_x_deg) / 2.0)
+    fy = s.height / 2.0 / math.tan(math.radians(s.fov_y_deg) / 2.0)
+    return s.width, s.height, fx, fy, (s.width - 1) / 2.0, (s.height - 1) / 2.0
+
+
+def camera_info(sensor: SensorConfig):
+    from pydrake.systems.sensors import CameraInfo
+    w, h, fx, fy, cx, cy = intrinsics(sensor)
+    return CameraInfo(w, h, fx, fy, cx, cy)
+
+
+def ray_directions(sensor: SensorConfig, stride: int = 1):
+    """Unit ray directions in the camera frame (+z forward, +x right, +y down) through every
+    `stride`-th pixel centre, and each ray's [t_near, t_far] (the depth range along the ray)."""
+    s = resolve_sensor(sensor)
+    w, h, fx, fy, cx, cy = intrinsics(sensor)
+    off = (stride - 1) / 2.0
+    u = np.arange(0, w - off, stride) + off
+    v = np.arange(0, h - off, stride) + off
+    uu, vv = np.meshgrid(u, v)
+    d = np.stack([(uu.ravel() - cx) / fx, (vv.ravel() - cy) / fy, np.ones(uu.size)], axis=1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return np.ascontiguousarray(d), s.z_near / d[:, 2], s.z_far / d[:, 2]
+
+
+def axial_noise_sigma(sensor: SensorConfig, z: np.ndarray) -> np.ndarray:
+    """sigma_z = a + b (z - 0.4)^2 (Kinect model of Nguyen et al. 2012; zero for the ToF preset)."""
+    s = resolve_sensor(sensor)
+    return s.noise_a + s.noise_b * (np.asarray(z) - 0.4) ** 2

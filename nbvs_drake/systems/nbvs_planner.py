@@ -1,0 +1,105 @@
+"""NBVSPlanner: plans the next best view/state after each scan."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from ..config import Scenario
+from ..mapping.occupancy import OccupancyMap
+from ..motion import ControlSequence
+from ..planning.random_sampling import PlanResult, RandomSamplingPlanner
+
+
+class PlannerMemory:
+    """Immutable planner state: the last plan, the believed state, the last report."""
+
+    def __init__(self, controls: ControlSequence, believed: np.ndarray, planned_for_scan: int = 0,
+                 report: dict | None = None, stop_reason: str = ""):
+        self.controls = controls
+        self.believed = np.asarray(believed, float)
+        self.planned_for_scan = planned_for_scan
+        self.report = report or {}
+        self.stop_reason = stop_reason
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+class NBVSPlanner(LeafSystem):
+    """After each new scan: stop if the scan budget is spent; otherwise plan the NBVS from the
+    believed state with the configured strategy (random_sampling: seed 000 §7.6 filter
+    cascade, g = pos * reg * sur * dist) and emit its control sequence. When no candidate
+    survives the filters, or none can be reached, it stops and names the reason. The belief
+    after a plan is the plan's final state (dead reckoning).
+
+    Input ports:
+      - map (abstract OccupancyMap).
+    Output ports:
+      - controls (abstract ControlSequence): the current plan tau (plan_id 0: none yet).
+      - believed_state (8): where the robot believes it is.
+      - report (abstract dict): the last plan's report (chosen state, utility factors,
+        candidates per filter stage, time per stage, stop reason).
+      - stopped (1): 1 once the mission is over.
+    State: abstract PlannerMemory.
+    """
+
+    def __init__(self, sc: Scenario, planner: RandomSamplingPlanner, q0):
+        super().__init__()
+        self.sc = sc
+        self.planner = planner
+        dt = sc.robot.control_dt
+        mem = PlannerMemory(ControlSequence.empty(q0, dt), q0)
+        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
+        self._mem = self.DeclareAbstractState(AbstractValue.Make(mem))
+        self.DeclareAbstractOutputPort("controls", lambda: AbstractValue.Make(mem.controls), self._calc_controls,
+                                       {self.abstract_state_ticket(self._mem)})
+        self.DeclareVectorOutputPort("believed_state", 8, self._calc_belief, {self.abstract_state_ticket(self._mem)})
+        self.DeclareAbstractOutputPort("report", lambda: AbstractValue.Make({}), self._calc_report,
+                                       {self.abstract_state_ticket(self._mem)})
+        self.DeclareVectorOutputPort("stopped", 1, self._calc_stopped, {self.abstract_state_ticket(self._mem)})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
+
+    def _mem_of(self, context) -> PlannerMemory:
+        return context.get_abstract_state(self._mem).get_value()
+
+    def _update(self, context, state):
+        mem = self._mem_of(context)
+        if mem.stop_reason:
+            return
+        omap: OccupancyMap = self._map.Eval(context)
+        k = omap.scan_count
+        if k <= mem.planned_for_scan:
+            return
+        if k >= self.sc.mission.max_scans:
+            new = PlannerMemory(mem.controls, mem.believed, k, {"scan": k, "status": "stop"}, "max_scans")
+        else:
+            rng = np.random.default_rng([self.sc.seed, 1, k])
+            t = time.perf_counter()
+            res: PlanResult = self.planner.plan(omap, mem.believed, rng)
+            rep = {"scan": k, **res.to_json(), "plan_s": time.perf_counter() - t}
+            if res.status != "ok":
+                reason = "no_valid_candidate" if res.status == "no_candidate" else "no_path"
+                new = PlannerMemory(mem.controls, mem.believed, k, rep, reason)
+            else:
+                tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states)
+                rep["plan_id"] = tau.plan_id
+                rep["motion_sim_s"] = tau.m * tau.dt
+                new = PlannerMemory(tau, res.states[-1], k, rep)
+        state.get_mutable_abstract_state(self._mem).set_value(new)
+
+    def _calc_controls(self, context, output):
+        output.set_value(self._mem_of(context).controls)
+
+    def _calc_belief(self, context, output: BasicVector):
+        output.SetFromVector(self._mem_of(context).believed)
+
+    def _calc_report(self, context, output):
+        mem = self._mem_of(context)
+        output.set_value({**mem.report, "stop_reason": mem.stop_reason})
+
+    def _calc_stopped(self, context, output: BasicVector):
+        output.SetFromVector([1.0 if self._mem_of(context).stop_reason else 0.0])

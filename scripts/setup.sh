@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Creates .venv and installs nbvs_drake with its test extras. Installs the Debian packages the
+# stack needs (open3d: libusb-1.0-0; VTK's headless rendering: EGL/Mesa; diagram pictures:
+# graphviz) when they are missing and we are root; otherwise says which ones to install.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PYTHON="${PYTHON:-python3}"
+DEB_PKGS="libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri graphviz"
+
+missing=""
+if command -v dpkg-query >/dev/null 2>&1; then
+  for p in $DEB_PKGS; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+  done
+fi
+if [ -n "$missing" ]; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    echo "setup: installing Debian packages:$missing"
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq --no-install-recommends $missing >/dev/null
+  else
+    echo "setup: please install these Debian packages (as root):$missing" >&2
+  fi
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  "$PYTHON" -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip
+.venv/bin/python -m pip install -q -e ".[test]"
+.venv/bin/python -c "import pydrake, open3d, numba; print('setup: ok (drake, open3d', open3d.__version__ + ', numba', numba.__version__ + ')')"

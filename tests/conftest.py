@@ -1,0 +1,43 @@
+import numpy as np
+import pytest
+
+from nbvs_drake.config import Scenario, load_scenario
+from nbvs_drake.robot import RobotKinematics
+
+
+@pytest.fixture(scope="session")
+def kin():
+    return RobotKinematics()
+
+
+@pytest.fixture
+def scenario() -> Scenario:
+    return load_scenario()
+
+
+@pytest.fixture(scope="session")
+def first_scan_map():
+    """The default scene's map after the first scan from the start pose (real rendering)."""
+    from nbvs_drake.diagram import build_mission_diagram
+    import tempfile
+    from pathlib import Path
+    sc = load_scenario()
+    with tempfile.TemporaryDirectory() as tmp:
+        md = build_mission_diagram(sc, Path(tmp), log=None)
+        from pydrake.systems.analysis import Simulator
+        sim = Simulator(md.diagram)
+        sim.Initialize()
+        sim.AdvanceTo(0.5 * sc.robot.control_dt)  # the t = 0 scan
+        mapper = md.systems["mapper"]
+        omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(sim.get_context()))
+    assert omap.scan_count == 1
+    return sc, omap
+
+
+def random_states(kin, n, seed=0):
+    rng = np.random.default_rng(seed)
+    q = np.empty((n, 8))
+    q[:, :2] = rng.uniform(-1.5, 1.5, (n, 2))
+    q[:, 2] = rng.uniform(-np.pi, np.pi, n)
+    q[:, 3:] = rng.uniform(kin.arm_lower, kin.arm_upper, (n, 5))
+    return q

@@ -1,0 +1,75 @@
+"""The depth camera renders Drake's scene with RenderEngineVtk; depths match analytic distances."""
+import numpy as np
+from pydrake.geometry import SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+from nbvs_drake.config import Scenario
+from nbvs_drake.robot import add_robot
+from nbvs_drake.scene import add_environment
+from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera, add_renderer
+from nbvs_drake.systems.octree_mapper import clean_scan
+
+
+def _camera_diagram(kin, q):
+    sc = Scenario()
+    builder = DiagramBuilder()
+    sg = builder.AddSystem(SceneGraph())
+    add_renderer(sg)
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(sg)
+    add_robot(plant, sc.robot.urdf)
+    add_environment(plant, sc)  # floor + table, no object
+    plant.Finalize()
+    to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
+    builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
+    src = builder.AddSystem(ConstantVectorSource(kin.to_positions(q)))
+    builder.Connect(src.get_output_port(), to_pose.get_input_port())
+    rgbd, to_pc = add_depth_camera(builder, sg, plant, sc.sensor)
+    pose = builder.AddSystem(CameraPose(kin))
+    qsrc = builder.AddSystem(ConstantVectorSource(q))
+    builder.Connect(qsrc.get_output_port(), pose.get_input_port())
+    builder.Connect(pose.get_output_port(), to_pc.camera_pose_input_port())
+    d = builder.Build()
+    return d, rgbd, to_pc, plant
+
+
+def test_depth_of_the_floor_seen_straight_down(kin):
+    # arm raised 0.6 rad, wrist pitched so that the optical axis points straight down
+    q = np.array([-1.7, 0.0, 0.0, 0.0, 0.6, 0.0, -np.pi / 2 - 0.6, 0.0])
+    X = kin.camera_poses(q)[0]
+    np.testing.assert_allclose(X[:3, 2], [0, 0, -1], atol=1e-12)
+    d, rgbd, to_pc, _ = _camera_diagram(kin, q)
+    ctx = d.CreateDefaultContext()
+    depth = np.array(rgbd.depth_image_32F_output_port().Eval(rgbd.GetMyContextFromRoot(ctx)).data)[:, :, 0]
+    assert depth.shape == (144, 176)  # SR4000
+    # a plane perpendicular to the optical axis has constant depth = camera height
+    centre = depth[36:108, 44:132]
+    np.testing.assert_allclose(centre, X[2, 3], atol=1e-3)
+    # the world-frame cloud of those pixels lies on the floor (z = 0)
+    pts = clean_scan(to_pc.point_cloud_output_port().Eval(to_pc.GetMyContextFromRoot(ctx)).xyzs())
+    assert len(pts) > 0.5 * depth.size
+    floor = pts[np.abs(pts[:, 2]) < 0.01]
+    assert len(floor) > 0.4 * depth.size
+
+
+def test_depth_of_the_floor_at_45_degrees_pixel_by_pixel(kin, scenario):
+    from nbvs_drake.sensor import intrinsics
+    q = np.array([-1.7, 0.0, 0.0, 0.0, 0.6, 0.0, -np.pi / 4 - 0.6, 0.0])
+    X = kin.camera_poses(q)[0]
+    d, rgbd, _, _ = _camera_diagram(kin, q)
+    ctx = d.CreateDefaultContext()
+    depth = np.array(rgbd.depth_image_32F_output_port().Eval(rgbd.GetMyContextFromRoot(ctx)).data)[:, :, 0]
+    w, h, fx, fy, cx, cy = intrinsics(scenario.sensor)
+    v, u = np.mgrid[0:h, 0:w]
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u, float)], axis=-1) @ X[:3, :3].T
+    expected = -X[2, 3] / rays[..., 2]  # depth (camera z) where the pixel's ray meets z = 0
+    window = (slice(100, 144), slice(40, 136))  # lower rows: the floor in front of the robot
+    np.testing.assert_allclose(depth[window], expected[window], rtol=2e-3)
+    # every pixel whose floor point lies in front of the table (x < -0.45) matches too
+    hit_x = X[0, 3] + expected * rays[..., 0]
+    sel = hit_x < -0.45
+    assert sel.sum() > 0.9 * depth.size
+    np.testing.assert_allclose(depth[sel], expected[sel], rtol=2e-3)

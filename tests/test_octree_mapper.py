@@ -1,0 +1,113 @@
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.perception import BaseField, Fields, PointCloud
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.sensors import ImageDepth32F
+
+from nbvs_drake.config import Scenario
+from nbvs_drake.mapping import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from nbvs_drake.systems.octree_mapper import OctreeMapper, clean_scan
+
+
+def _wall_scan():
+    """A camera at x = -1 looking along +x at a wall of points at x = 0.1 inside W_box."""
+    ys, zs = np.meshgrid(np.linspace(-0.2, 0.2, 81), np.linspace(0.5, 0.8, 61))
+    pts = np.stack([np.full(ys.size, 0.1), ys.ravel(), zs.ravel()], axis=1)
+    R = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # camera z = world x
+    X = RigidTransform(R=__import__("pydrake.math", fromlist=["RotationMatrix"]).RotationMatrix(R),
+                       p=[-1.0, 0.0, 0.65])
+    return pts, X
+
+
+def test_free_along_rays_occupied_at_hits_unknown_behind():
+    sc = Scenario()
+    m0 = OccupancyMap.for_scenario(sc)
+    pts, X = _wall_scan()
+    m1, stats = m0.integrate(X.translation(), pts, sc.mapper.table_clearance)
+    assert stats["object_points"] == len(pts)
+    c = m1.classes()
+    spec = m1.spec
+    idx = lambda p: tuple(((np.asarray(p) - spec.bmin) // spec.res).astype(int))  # noqa: E731
+    assert c[idx([0.11, 0.0, 0.65])] == OCCUPIED  # the wall
+    assert c[idx([-0.2, 0.0, 0.65])] == FREE  # in front of it, on the rays
+    assert c[idx([0.3, 0.0, 0.65])] == UNKNOWN  # behind it
+    assert c[idx([-0.2, 0.3, 0.65])] == UNKNOWN  # beside the frustum of the points
+    # probabilities follow OctoMap's sensor model: one hit 0.7, one miss 0.4
+    p = m1.probabilities()
+    assert abs(p[idx([0.11, 0.0, 0.65])] - 0.7) < 1e-6
+    assert abs(p[idx([-0.2, 0.0, 0.65])] - 0.4) < 1e-6
+    # the input map is unchanged (immutable snapshots)
+    assert m0.unknown_count() == np.prod(spec.dims)
+    # a second identical scan: one update per voxel per scan, clamped
+    m2, _ = m1.integrate(X.translation(), pts, sc.mapper.table_clearance)
+    assert abs(m2.probabilities()[idx([0.11, 0.0, 0.65])] - 0.7 * 0.7 / (0.7 * 0.7 + 0.3 * 0.3)) < 1e-5
+    ms = m2
+    for _ in range(20):
+        ms, _ = ms.integrate(X.translation(), pts, sc.mapper.table_clearance)
+    assert abs(ms.probabilities()[idx([0.11, 0.0, 0.65])] - 0.971) < 1e-5
+    assert abs(ms.probabilities()[idx([-0.2, 0.0, 0.65])] - 0.1192) < 1e-5
+
+
+def test_table_points_are_not_object_hits():
+    sc = Scenario()
+    m0 = OccupancyMap.for_scenario(sc)
+    pts = np.array([[0.0, 0.0, sc.scene.table_height + 0.001], [0.0, 0.05, 0.6]])
+    m1, stats = m0.integrate(np.array([-1.0, 0.0, 0.9]), pts, sc.mapper.table_clearance)
+    assert stats["object_points"] == 1
+    assert m1.counts()["occupied"] == 1
+
+
+def test_mapper_system_scans_when_idle_and_drops_invalid_points():
+    sc = Scenario()
+    mapper = OctreeMapper(sc, 0.1)
+    sim = Simulator(mapper)
+    ctx = sim.get_mutable_context()
+    pts, X = _wall_scan()
+    pts = np.concatenate([pts, [[np.nan, 0, 0], [np.inf, np.inf, np.inf]]])
+    cloud = PointCloud(len(pts), Fields(BaseField.kXYZs))
+    cloud.mutable_xyzs()[:] = pts.T
+    assert len(clean_scan(cloud.xyzs())) == len(pts) - 2
+    mapper.GetInputPort("point_cloud").FixValue(ctx, AbstractValue.Make(cloud))
+    mapper.GetInputPort("camera_pose").FixValue(ctx, AbstractValue.Make(X))
+    mapper.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
+    status = mapper.GetInputPort("controller_status").FixValue(ctx, [0, 0, 0])  # plan 0, moving
+    sim.AdvanceTo(0.25)
+    assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 0
+    status.GetMutableData().set_value(np.array([0.0, 0.0, 1.0]))  # idle: scan once
+    sim.AdvanceTo(0.55)
+    m = mapper.GetOutputPort("map").Eval(ctx)
+    assert m.scan_count == 1
+    assert m.counts()["occupied"] > 50
+    assert np.all(np.isfinite(m.logodds)) and np.all(np.isfinite(m.object_points))
+    rep = mapper.GetOutputPort("scan_report").Eval(ctx)
+    assert rep.scan_index == 1 and rep.info["points"] == len(pts) - 2
+    sim.AdvanceTo(1.0)  # still idle on the same plan: no second scan
+    assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 1
+
+
+def test_no_return_pixels_clear_free_space():
+    from nbvs_drake.systems.octree_mapper import no_return_rays
+    from nbvs_drake.sensor import ray_directions
+    sc = Scenario()
+    dirs = ray_directions(sc.sensor, 1)[0]
+    depth = np.full((144, 176), np.inf, np.float32)
+    depth[0, 0] = np.nan
+    depth[0, 1] = 0.0  # too close
+    _, X = _wall_scan()
+    ends = no_return_rays(depth, X.GetAsMatrix4(), dirs, 5.0)
+    assert len(ends) == depth.size - 2
+    m, stats = OccupancyMap.for_scenario(sc).integrate(X.translation(), np.zeros((0, 3)), 0.005, ends)
+    assert stats["object_points"] == 0
+    assert m.counts()["occupied"] == 0 and m.counts()["free"] > 1000
+
+
+def test_save_load_roundtrip(tmp_path):
+    sc = Scenario()
+    pts, X = _wall_scan()
+    m, _ = OccupancyMap.for_scenario(sc).integrate(X.translation(), pts, 0.005)
+    m.save_npz(tmp_path / "m.npz")
+    m2 = OccupancyMap.load_npz(tmp_path / "m.npz")
+    np.testing.assert_array_equal(m.logodds, m2.logodds)
+    np.testing.assert_array_equal(m.object_points, m2.object_points)
+    assert m2.scan_count == 1 and m2.spec.dims == m.spec.dims

@@ -71,5 +71,5 @@ def test_depth_of_the_floor_at_45_degrees_pixel_by_pixel(kin, scenario):
     # every pixel whose floor point lies in front of the table (x < -0.45) matches too
     hit_x = X[0, 3] + expected * rays[..., 0]
     sel = hit_x < -0.45
-    assert sel.sum() > 0.9 * depth.size
+    assert sel.sum() > 0.2 * depth.size
     np.testing.assert_allclose(depth[sel], expected[sel], rtol=2e-3)

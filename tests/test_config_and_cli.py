@@ -1,0 +1,88 @@
+"""Bad input gets a one-line error naming the problem (exit code 2), never a traceback."""
+import numpy as np
+import pytest
+
+from nbvs_drake.cli import main
+from nbvs_drake.config import Scenario, load_scenario, resolve_sensor, validate
+from nbvs_drake.errors import MeshError, ScenarioError
+from nbvs_drake.objects import build_object, tessellate_teapot
+
+
+def _cli_error(capsys, tmp_path, yaml_text, name="bad.yaml"):
+    p = tmp_path / name
+    p.write_text(yaml_text)
+    rc = main(["reconstruct", "--scenario", str(p), "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    assert err.startswith("nbvs: error: ")
+    return err
+
+
+@pytest.mark.parametrize("yaml_text, expect", [
+    ("planner:\n  n_candidats: 10\n", "n_candidats"),
+    ("nosuchsection: 1\n", "nosuchsection"),
+    ("noise:\n  sigma_v: -0.1\n", "noise.sigma_v must be >= 0"),
+    ("noise:\n  sigma_arm: [0, 0, -1, 0, 0]\n", "noise.sigma_arm"),
+    ("planner:\n  overlap_h: 1.5\n", "planner.overlap_h (h) must be in [0, 1]"),
+    ("mission:\n  max_scans: 0\n", "mission.max_scans must be >= 1"),
+    ("mapper:\n  voxel_size: 0\n", "mapper.voxel_size must be > 0"),
+    ("scene:\n  bbox_min: [0, 0, 1]\n  bbox_max: [1, 1, 0.5]\n", "bounding box is empty"),
+    ("robot:\n  start: [0, 0, 0]\n", "robot.start must be 8"),
+    ("sensor:\n  preset: lidar\n", "sensor.preset"),
+    ("scene:\n  object:\n    kind: mesh\n    mesh: nowhere/bunny.ply\n", "object mesh not found"),
+    ("scene:\n  object:\n    size: 0.9\n", "does not fit in the bounding box W_box"),
+    ("scene: [1, 2\n", "malformed scenario"),
+])
+def test_bad_scenarios_get_one_line_errors(capsys, tmp_path, yaml_text, expect):
+    err = _cli_error(capsys, tmp_path, yaml_text)
+    assert expect in err
+
+
+def test_missing_scenario_file(capsys, tmp_path):
+    rc = main(["reconstruct", "--scenario", str(tmp_path / "none.yaml")])
+    assert rc == 2 and "scenario file not found" in capsys.readouterr().err
+
+
+def test_unreadable_mesh(tmp_path, capsys):
+    bad = tmp_path / "broken.ply"
+    bad.write_text("this is not a mesh\n")
+    err = _cli_error(capsys, tmp_path, f"scene:\n  object:\n    kind: mesh\n    mesh: {bad}\n")
+    assert "broken.ply" in err and ("unreadable" in err or "cannot read" in err)
+
+
+def test_defaults_and_presets():
+    sc = load_scenario()
+    assert sc.name == "default" and sc.mission.max_scans == 12
+    s = resolve_sensor(sc.sensor)
+    assert (s.width, s.height, s.fov_x_deg, s.fov_y_deg, s.z_near, s.z_far) == (176, 144, 43.6, 34.6, 0.4, 5.0)
+    k = Scenario()
+    k.sensor.preset = "kinect"
+    s = resolve_sensor(k.sensor)
+    assert (s.width, s.height, s.noise_a, s.noise_b) == (640, 480, 0.0012, 0.0019)
+    assert Scenario().noise.sigma_w == 0.28 and Scenario().noise.sigma_v == 0.00165  # Table 4
+
+
+def test_mesh_object_from_file(tmp_path):
+    # write the teapot as an OBJ and load it back as a "mesh" object, scaled by `size`
+    tp = tessellate_teapot(6)
+    path = tp.write_obj(tmp_path / "pot.obj")
+    sc = Scenario(base_dir=str(tmp_path))
+    sc.scene.object.kind = "mesh"
+    sc.scene.object.mesh = "pot.obj"
+    sc.scene.object.size = 0.3
+    validate(sc)
+    mesh = build_object(sc)
+    lo, hi = mesh.bounds
+    assert max(hi - lo) == pytest.approx(0.3)
+    assert lo[2] == pytest.approx(sc.scene.table_height)
+    with pytest.raises(MeshError):
+        sc.scene.object.mesh = "missing.obj"
+        build_object(sc)
+
+
+def test_teapot_tessellation():
+    m = tessellate_teapot(8)
+    lo, hi = m.bounds
+    np.testing.assert_allclose(hi[2] - lo[2], 3.15, atol=1e-9)  # Newell's height
+    assert len(m.triangles) > 32 * 8 * 8 * 1.5

@@ -1,0 +1,59 @@
+import json
+
+import numpy as np
+import pytest
+
+from nbvs_drake.config import load_scenario
+from nbvs_drake.mission import run_mission
+
+
+def _small(seed=0, scans=3):
+    sc = load_scenario(seed=seed)
+    sc.mission.max_scans = scans
+    sc.planner.n_candidates = 600
+    sc.scene.gt_points = 8000
+    return sc
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("run")
+    summary = run_mission(_small(), out, verbose=False)
+    return out, summary
+
+
+def test_short_run_writes_everything(small_run):
+    out, s = small_run
+    for f in ("summary.json", "iterations.jsonl", "model.ply", "coverage.png", "map.npz"):
+        assert (out / f).stat().st_size > 0, f
+    disk = json.loads((out / "summary.json").read_text())
+    for key in ("coverage", "coverage_5mm", "coverage_by_scan", "scans", "collisions",
+                "executed_trajectories", "stop_reason", "wall_s"):
+        assert key in disk
+    assert disk["scans"] == 3 and disk["stop_reason"] == "max_scans"
+    assert disk["executed_trajectories"] == 2 and disk["collisions"] == 0
+    cov = disk["coverage_by_scan"]
+    assert len(cov) == 3 and all(b >= a - 1e-9 for a, b in zip(cov, cov[1:]))
+    assert cov[-1] > cov[0] > 0.1
+    lines = (out / "iterations.jsonl").read_text().splitlines()
+    assert [json.loads(x)["iteration"] for x in lines] == [1, 2, 3]
+    ply = (out / "model.ply").read_bytes()
+    assert ply.startswith(b"ply\n") and f"element vertex {disk['object_points']}".encode() in ply
+
+
+def test_same_seed_same_summary(small_run, tmp_path):
+    out, s1 = small_run
+    s2 = run_mission(_small(), tmp_path, verbose=False)
+    strip = lambda s: {k: v for k, v in s.items() if k not in ("wall_s", "times_s")}  # noqa: E731
+    assert strip(s1) == strip(s2)
+    a = [json.loads(x) for x in (out / "iterations.jsonl").read_text().splitlines()]
+    b = [json.loads(x) for x in (tmp_path / "iterations.jsonl").read_text().splitlines()]
+    assert [r["plan"].get("q_goal") for r in a] == [r["plan"].get("q_goal") for r in b]
+
+
+@pytest.mark.slow
+def test_default_teapot_reconstruction(tmp_path):
+    """The `make run` job: coverage >= 0.85 within 12 scans, no collision."""
+    s = run_mission(load_scenario(), tmp_path, verbose=False)
+    assert s["scans"] <= 12 and s["collisions"] == 0
+    assert s["coverage"] >= 0.85, s["coverage_by_scan"]

@@ -1,0 +1,102 @@
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
+
+from nbvs_drake.mapping import kernels as K
+from nbvs_drake.motion import path_length, rollout, steer, wrap_angle
+from nbvs_drake.planning.collision import CollisionModel
+from nbvs_drake.planning.random_sampling import RandomSamplingPlanner, director_ray_hits, registration_overlap
+from nbvs_drake.systems.nbvs_planner import NBVSPlanner
+
+
+@pytest.fixture(scope="module")
+def planner(kin, first_scan_map):
+    sc, _ = first_scan_map
+    sc.planner.n_candidates = 1500
+    return RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
+
+
+def test_filter_cascade_stages(planner, first_scan_map, kin):
+    sc, omap = first_scan_map
+    q0 = np.array(sc.robot.start)
+    res = planner.plan(omap, q0, np.random.default_rng(0))
+    assert res.status == "ok"
+    st = res.stages
+    # every stage keeps a subset of the previous one
+    assert st["sampled"] >= st["director_ray"] == 1500
+    assert st["director_ray"] >= st["position"] >= st["registration"] >= st["surface"] >= st["top_k"] >= st["with_path"] >= 1
+    assert st["top_k"] <= sc.planner.top_k
+    # the chosen state: collision free, passes the registration filter, sees unknown space
+    f = res.factors
+    assert planner.collision.free(res.q_goal)[0]
+    assert f["overlap"] > sc.planner.overlap_h and f["un_o"] > 0
+    assert res.utility == pytest.approx(f["pos"] * f["reg"] * f["sur"] * f["dist"])
+    assert f["dist"] == pytest.approx(1 / (1 + path_length(res.states, sc.planner.weights)))
+    # its controls, replayed without noise, reach it exactly and stay collision free
+    end = rollout(q0, res.controls, sc.robot.control_dt)[-1]
+    np.testing.assert_allclose(end[:2], res.q_goal[:2], atol=1e-9)
+    assert abs(wrap_angle(end[2] - res.q_goal[2])) < 1e-9
+    np.testing.assert_allclose(end[3:], res.q_goal[3:], atol=1e-9)
+    assert planner.collision.path_free(res.states)
+    # the metrics of the chosen view agree with a fresh evaluation
+    met = planner.evaluator.evaluate(omap, res.q_goal[None])
+    assert met[0, K.M_UN_O] == f["un_o"]
+    assert registration_overlap(met)[0] == pytest.approx(f["overlap"])
+
+
+def test_director_ray_filter(kin):
+    q = np.array([[-1.45, 0, 0, 0, 0.35, -0.35, -0.25, 0],  # looks at the table
+                  [-1.45, 0, np.pi, 0, 0.35, -0.35, -0.25, 0]])  # looks away
+    hits = director_ray_hits(kin.camera_poses(q), [-0.4, -0.4, 0.43], [0.4, 0.4, 0.95], 0.4, 5.0)
+    np.testing.assert_array_equal(hits, [True, False])
+
+
+def test_steering_variants_are_exact(scenario):
+    rc = scenario.robot
+    q0 = np.array([-1.2, 0.3, 0.2, 0.1, 0.4, -0.3, 0.0, 0.0])
+    q1 = np.array([0.5, 1.4, -2.8, -0.5, 0.9, 0.2, -0.6, 1.0])
+    for kind, U in steer(q0, q1, rc):
+        end = rollout(q0, U, rc.control_dt)[-1]
+        np.testing.assert_allclose(end[:2], q1[:2], atol=1e-9, err_msg=kind)
+        assert abs(wrap_angle(end[2] - q1[2])) < 1e-9
+        np.testing.assert_allclose(end[3:], q1[3:], atol=1e-9)
+        assert np.all(np.abs(U[:, 0]) <= rc.max_linear_velocity + 1e-12)
+        assert np.all(np.abs(U[:, 1]) <= rc.max_angular_velocity + 1e-12)
+        assert np.all(np.abs(U[:, 2:]) <= rc.max_arm_velocity + 1e-12)
+        # turn-drive-turn: never turning and driving in the same step
+        assert not np.any((U[:, 0] != 0) & (U[:, 1] != 0))
+
+
+def test_path_length_eq8():
+    w = [10, 10, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05]
+    s = np.zeros((3, 8))
+    s[1, 0] = 1.0  # 1 m in x
+    s[2, 0] = 1.0
+    s[2, 2] = 2 * np.pi - 0.1  # wraps to -0.1 rad
+    assert path_length(s, w) == pytest.approx(np.sqrt(10) + np.sqrt(0.5) * 0.1)
+
+
+def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, first_scan_map):
+    sc, omap = first_scan_map
+    q0 = np.array(sc.robot.start)
+    sys_ = NBVSPlanner(sc, planner, q0)
+    sim = Simulator(sys_)
+    ctx = sim.get_mutable_context()
+    port = sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+    sim.AdvanceTo(0.05)
+    tau = sys_.GetOutputPort("controls").Eval(ctx)
+    rep = sys_.GetOutputPort("report").Eval(ctx)
+    assert tau.plan_id == 1 and tau.m == rep["n_controls"] > 0
+    np.testing.assert_allclose(sys_.GetOutputPort("believed_state").Eval(ctx), tau.states[-1])
+    assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 0
+    sim.AdvanceTo(0.35)  # same scan: no re-planning
+    assert sys_.GetOutputPort("controls").Eval(ctx).plan_id == 1
+    # a map that has reached the scan budget stops the mission
+    import copy
+    spent = omap.__class__(omap.spec, omap.model, np.array(omap.logodds), np.array(omap.object_points),
+                           sc.mission.max_scans, omap.wbox_min, omap.wbox_max)
+    port.GetMutableData().set_value(spent)
+    sim.AdvanceTo(0.55)
+    assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 1
+    assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "max_scans"

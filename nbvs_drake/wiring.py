@@ -11,7 +11,8 @@ from .config import Scenario
 
 
 def write_wiring(sc: Scenario, out_base: Path) -> list[Path]:
-    """Writes OUT.dot, and OUT.svg when Graphviz's `dot` is installed. Returns the paths."""
+    """Writes OUT.dot, and OUT.svg and OUT.png when Graphviz's `dot` is installed. Returns
+    the paths written."""
     from .diagram import build_mission_diagram
     out_base = Path(out_base)
     with tempfile.TemporaryDirectory() as tmp:
@@ -20,7 +21,8 @@ def write_wiring(sc: Scenario, out_base: Path) -> list[Path]:
     paths = [out_base.with_suffix(".dot")]
     paths[0].write_text(dot)
     if shutil.which("dot"):
-        svg = out_base.with_suffix(".svg")
-        subprocess.run(["dot", "-Tsvg", str(paths[0]), "-o", str(svg)], check=True)
-        paths.append(svg)
+        for fmt, extra in (("svg", []), ("png", ["-Gdpi=80"])):
+            p = out_base.with_suffix("." + fmt)
+            subprocess.run(["dot", f"-T{fmt}", *extra, str(paths[0]), "-o", str(p)], check=True)
+            paths.append(p)
     return paths

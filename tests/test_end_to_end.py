@@ -57,3 +57,12 @@ def test_default_teapot_reconstruction(tmp_path):
     s = run_mission(load_scenario(), tmp_path, verbose=False)
     assert s["scans"] <= 12 and s["collisions"] == 0
     assert s["coverage"] >= 0.85, s["coverage_by_scan"]
+
+
+def test_wiring_picture(tmp_path):
+    from nbvs_drake.wiring import write_wiring
+    paths = write_wiring(load_scenario(), tmp_path / "w")
+    dot = paths[0].read_text()
+    for name in ("kinematic_plant", "noisy_velocity_controller", "depth_camera", "octree_mapper",
+                 "nbvs_planner", "position_to_geometry_pose", "scene_graph"):
+        assert f"name={name}" in dot, name

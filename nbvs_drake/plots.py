@@ -27,7 +27,7 @@ def plot_coverage(records: list[dict], path: Path, title: str = ""):
     ax2.set_ylabel("unknown voxels", color="0.4")
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = ax2.get_legend_handles_labels()
-    ax.legend(h1 + h2, l1 + l2, loc="center right", fontsize=8)
+    ax.legend(h1 + h2, l1 + l2, loc="lower right", fontsize=8)
     ax.set_title(title)
     fig.tight_layout()
     fig.savefig(path)

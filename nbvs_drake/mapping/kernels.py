@@ -21,7 +21,10 @@ M_RSV = 4  #: rays that hit an occupied voxel whose next voxel along the ray is 
 M_RAYS = 5  #: rays that enter the map
 M_OC_RAYS = 6  #: rays whose first non-free voxel is occupied (the scan lands on known surface)
 M_UN_RAYS = 7  #: rays whose first non-free voxel is unknown
-N_METRICS = 8
+M_N_POSTERIOR = 8  #: seed 001 n_posterior: distinct unknown voxels touched only behind another unknown voxel
+N_METRICS = 9
+M_VUV = M_UN_O  #: seed 003 VUV
+M_N_FIRST = M_UN_O  #: seed 001 n_first
 
 
 @nb.njit(cache=True, inline="always")
@@ -60,6 +63,22 @@ def _axis_start(o, d, t0, lo, res, n):
         i = 0
     elif i >= n:
         i = n - 1
+    if d > 0:
+        return i, 1, (lo + (i + 1) * res - o) / d, res / d
+    if d < 0:
+        return i, -1, (lo + i * res - o) / d, -res / d
+    return i, 0, np.inf, np.inf
+
+
+@nb.njit(cache=True, inline="always")
+def _axis_start_in(o, d, t0, lo, res, i_min, i_max):
+    """_axis_start with the index clamped to [i_min, i_max] (a coarse cell's children)."""
+    p = o + t0 * d
+    i = int(math.floor((p - lo) / res))
+    if i < i_min:
+        i = i_min
+    elif i > i_max:
+        i = i_max
     if d > 0:
         return i, 1, (lo + (i + 1) * res - o) / d, res / d
     if d < 0:
@@ -155,7 +174,7 @@ def entropy_grid(logodds):
 
 @nb.njit(cache=True)
 def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
-                   l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, out):
+                   l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out):
     nx, ny, nz = logodds.shape
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
     ox, oy, oz = o[0], o[1], o[2]
@@ -167,6 +186,7 @@ def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
     nrays = 0
     oc_rays = 0
     un_rays = 0
+    npost = 0
     for r in range(dirs_cam.shape[0]):
         cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
         dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
@@ -218,6 +238,11 @@ def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
                     if st_un[flat] != vid:
                         st_un[flat] = vid
                         un += 1
+                        if st_post[flat] == vid:  # was posterior on an earlier ray: now first
+                            npost -= 1
+                elif st_un[flat] != vid and st_post[flat] != vid:
+                    st_post[flat] = vid
+                    npost += 1
             if min(ti, tj, tk) >= t1:
                 break
             if ti <= tj and ti <= tk:
@@ -243,6 +268,7 @@ def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
     out[M_RAYS] = nrays
     out[M_OC_RAYS] = oc_rays
     out[M_UN_RAYS] = un_rays
+    out[M_N_POSTERIOR] = npost
 
 
 @nb.njit(cache=True, parallel=True)
@@ -262,6 +288,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     st_un = np.zeros((n_chunks, nvox), np.int32)
     st_oc = np.zeros((n_chunks, nvox), np.int32)
     st_fig = np.zeros((n_chunks, nvox), np.int32)
+    st_post = np.zeros((n_chunks, nvox), np.int32)
     per = (n + n_chunks - 1) // n_chunks
     for c in nb.prange(n_chunks):
         lo = c * per
@@ -269,5 +296,225 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         for v in range(lo, hi):
             _eval_one_view(logodds, H, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
                            t_near, t_far, l_free, l_occ, max_unknown_before_hit, v + 1,
-                           st_un[c], st_oc[c], st_fig[c], out[v])
+                           st_un[c], st_oc[c], st_fig[c], st_post[c], out[v])
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# Hierarchical ray tracing (seed 000 §5.4)
+# --------------------------------------------------------------------------------------
+
+C_UNKNOWN, C_OCCUPIED, C_FREE = 1, 2, 4  # bits of a coarse cell's summary
+
+
+@nb.njit(cache=True)
+def coarse_summary(logodds, H, a, l_free, l_occ):
+    """Level-a pyramid cell summaries: class bits (C_*) of the 2^a x 2^a x 2^a children, the
+    entropy sum and the count of their unknown children. Cells past the grid's edge hold
+    only the children that exist."""
+    s = 1 << a
+    nx, ny, nz = logodds.shape
+    cx, cy, cz = (nx + s - 1) // s, (ny + s - 1) // s, (nz + s - 1) // s
+    bits = np.zeros((cx, cy, cz), np.uint8)
+    hsum = np.zeros((cx, cy, cz), np.float64)
+    nunk = np.zeros((cx, cy, cz), np.int32)
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                lv = logodds[i, j, k]
+                ci, cj, ck = i // s, j // s, k // s
+                if lv > l_occ:
+                    bits[ci, cj, ck] |= C_OCCUPIED
+                elif lv >= l_free:
+                    bits[ci, cj, ck] |= C_UNKNOWN
+                    hsum[ci, cj, ck] += H[i, j, k]
+                    nunk[ci, cj, ck] += 1
+                else:
+                    bits[ci, cj, ck] |= C_FREE
+    return bits, hsum, nunk
+
+
+@nb.njit(cache=True)
+def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far,
+                       l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_cfig, st_post, out):
+    """Two-level hierarchical traversal. Exact in refined cells (those with an occupied voxel or
+    mixed classes); all-free cells are skipped; all-unknown cells are accounted at the coarse
+    level: the entry voxel is the ray's first unknown voxel (exact), FIG adds the cell's
+    entropy sum once per view, SIG the expected number of voxels the segment crosses times the
+    cell's mean entropy, n_posterior the cell's other unknown voxels once per view."""
+    nx, ny, nz = logodds.shape
+    cnx, cny, cnz = bits.shape
+    s = 1 << a
+    cres = res * s
+    ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
+    ox, oy, oz = o[0], o[1], o[2]
+    un = 0
+    oc = 0
+    fig = 0.0
+    sig = 0.0
+    rsv = 0
+    nrays = 0
+    oc_rays = 0
+    un_rays = 0
+    npost = 0
+    for r in range(dirs_cam.shape[0]):
+        cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
+        dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
+        dy = R[1, 0] * cx + R[1, 1] * cy + R[1, 2] * cz
+        dz = R[2, 0] * cx + R[2, 1] * cy + R[2, 2] * cz
+        t0, t1 = _clip(ox, oy, oz, dx, dy, dz, t_near[r], t_far[r], bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        if t0 > t1:
+            continue
+        nrays += 1
+        crossing = (abs(dx) + abs(dy) + abs(dz)) / res  # voxel boundaries crossed per metre
+        ci, sci, tci, dci = _axis_start(ox, dx, t0, bmin[0], cres, cnx)
+        cj, scj, tcj, dcj = _axis_start(oy, dy, t0, bmin[1], cres, cny)
+        ck, sck, tck, dck = _axis_start(oz, dz, t0, bmin[2], cres, cnz)
+        tc_in = t0
+        n_unknown = 0
+        stop = False
+        while not stop:
+            tc_out = min(tci, tcj, tck, t1)
+            b = bits[ci, cj, ck]
+            if b == C_UNKNOWN:
+                # homogeneous unknown cell
+                if tc_out > tc_in:
+                    tm = tc_in + 1e-9
+                    fi = min(max(int(math.floor((ox + tm * dx - bmin[0]) / res)), 0), nx - 1)
+                    fj = min(max(int(math.floor((oy + tm * dy - bmin[1]) / res)), 0), ny - 1)
+                    fk = min(max(int(math.floor((oz + tm * dz - bmin[2]) / res)), 0), nz - 1)
+                    flat = (fi * ny + fj) * nz + fk
+                    # voxels the segment crosses: one per boundary crossed, plus the voxel
+                    # the ray starts in when it starts inside this cell
+                    nvox_here = (tc_out - tc_in) * crossing + (1.0 if tc_in == t0 else 0.0)
+                    mean_h = hsum[ci, cj, ck] / nunk[ci, cj, ck]
+                    sig += nvox_here * mean_h
+                    cflat = (ci * cny + cj) * cnz + ck
+                    if st_cfig[cflat] != vid:
+                        st_cfig[cflat] = vid
+                        fig += hsum[ci, cj, ck]
+                        npost += nunk[ci, cj, ck] - 1
+                    if n_unknown == 0 and st_un[flat] != vid:
+                        st_un[flat] = vid
+                        un += 1
+                    prev = n_unknown
+                    n_unknown += int(nvox_here + 0.5)
+                    if prev <= max_unknown_before_hit < n_unknown:
+                        un_rays += 1
+            elif b != C_FREE and b != 0:
+                # refine: exact fine DDA inside this cell's interval
+                i, si, ti, di = _axis_start_in(ox, dx, tc_in, bmin[0], res, ci * s, min(ci * s + s, nx) - 1)
+                j, sj, tj, dj = _axis_start_in(oy, dy, tc_in, bmin[1], res, cj * s, min(cj * s + s, ny) - 1)
+                k, sk, tk, dk = _axis_start_in(oz, dz, tc_in, bmin[2], res, ck * s, min(ck * s + s, nz) - 1)
+                while True:
+                    lv = logodds[i, j, k]
+                    flat = (i * ny + j) * nz + k
+                    if lv > l_occ:
+                        if n_unknown <= max_unknown_before_hit:
+                            oc_rays += 1
+                            if st_oc[flat] != vid:
+                                st_oc[flat] = vid
+                                oc += 1
+                        i2, j2, k2 = i, j, k
+                        if ti <= tj and ti <= tk:
+                            i2 += si
+                        elif tj <= tk:
+                            j2 += sj
+                        else:
+                            k2 += sk
+                        if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz:
+                            lb = logodds[i2, j2, k2]
+                            if l_free <= lb <= l_occ:
+                                rsv += 1
+                        stop = True
+                        break
+                    if lv >= l_free:
+                        n_unknown += 1
+                        if n_unknown == max_unknown_before_hit + 1:
+                            un_rays += 1
+                        h = H[i, j, k]
+                        sig += h
+                        if st_fig[flat] != vid:  # refined cells are never accounted coarsely
+                            st_fig[flat] = vid
+                            fig += h
+                        if n_unknown == 1:
+                            if st_un[flat] != vid:
+                                st_un[flat] = vid
+                                un += 1
+                                if st_post[flat] == vid:
+                                    npost -= 1
+                        elif st_un[flat] != vid and st_post[flat] != vid:
+                            st_post[flat] = vid
+                            npost += 1
+                    tn = min(ti, tj, tk)
+                    if tn >= tc_out - 1e-12:
+                        break
+                    if ti <= tj and ti <= tk:
+                        i += si
+                        ti += di
+                        if i < 0 or i >= nx:
+                            break
+                    elif tj <= tk:
+                        j += sj
+                        tj += dj
+                        if j < 0 or j >= ny:
+                            break
+                    else:
+                        k += sk
+                        tk += dk
+                        if k < 0 or k >= nz:
+                            break
+            if stop or tc_out >= t1:
+                break
+            tc_in = tc_out
+            if tci <= tcj and tci <= tck:
+                ci += sci
+                tci += dci
+                if ci < 0 or ci >= cnx:
+                    break
+            elif tcj <= tck:
+                cj += scj
+                tcj += dcj
+                if cj < 0 or cj >= cny:
+                    break
+            else:
+                ck += sck
+                tck += dck
+                if ck < 0 or ck >= cnz:
+                    break
+    out[M_UN_O] = un
+    out[M_OC_O] = oc
+    out[M_FIG] = fig
+    out[M_SIG] = sig
+    out[M_RSV] = rsv
+    out[M_RAYS] = nrays
+    out[M_OC_RAYS] = oc_rays
+    out[M_UN_RAYS] = un_rays
+    out[M_N_POSTERIOR] = npost
+
+
+@nb.njit(cache=True, parallel=True)
+def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
+                       n_chunks, max_unknown_before_hit=2):
+    """evaluate_views with hierarchical ray tracing at resolution parameter a >= 1 (voxel size
+    2^a x res at the coarse level)."""
+    n = cam_pos.shape[0]
+    H = entropy_grid(logodds)
+    bits, hsum, nunk = coarse_summary(logodds, H, a, l_free, l_occ)
+    nvox = logodds.size
+    ncell = bits.size
+    out = np.zeros((n, N_METRICS))
+    st_un = np.zeros((n_chunks, nvox), np.int32)
+    st_oc = np.zeros((n_chunks, nvox), np.int32)
+    st_post = np.zeros((n_chunks, nvox), np.int32)
+    st_fig = np.zeros((n_chunks, nvox), np.int32)
+    st_cfig = np.zeros((n_chunks, ncell), np.int32)
+    per = (n + n_chunks - 1) // n_chunks
+    for c in nb.prange(n_chunks):
+        lo = c * per
+        hi = min(n, lo + per)
+        for v in range(lo, hi):
+            _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
+                               t_near, t_far, l_free, l_occ, max_unknown_before_hit, v + 1,
+                               st_un[c], st_oc[c], st_fig[c], st_cfig[c], st_post[c], out[v])
     return out

@@ -47,6 +47,10 @@ class GridSpec:
     def bmax(self) -> np.ndarray:
         return self.bmin + np.array(self.dims) * self.res
 
+    def key_offset(self) -> np.ndarray:
+        """OctoMap key of voxel (0, 0, 0): floor(bmin / res) + 2^15 (tree depth 16)."""
+        return np.rint(self.bmin / self.res).astype(np.int64) + 32768
+
     def centers(self) -> np.ndarray:
         """Voxel centres (nx, ny, nz, 3)."""
         ax = [self.bmin[a] + (np.arange(self.dims[a]) + 0.5) * self.res for a in range(3)]
@@ -57,17 +61,16 @@ class GridSpec:
 
 
 def grid_for_scenario(sc: Scenario) -> GridSpec:
-    """W_box grown by the margin on the sides and the top; the table top bounds it below.
-    Voxel boundaries are aligned with W_box's lower corner."""
+    """W_box grown by the margin on the sides and the top (the table bounds it below), on the
+    voxel lattice of OctoMap: voxel boundaries at integer multiples of the voxel size, so
+    that voxel (i, j, k) is OctoMap's key (i, j, k) + key_offset (see `octomap_key_offset`)."""
     m = sc.mapper
-    lo = np.array(sc.scene.bbox_min, float)
-    hi = np.array(sc.scene.bbox_max, float)
-    lo_m = lo - np.array([m.margin, m.margin, 0.0])
-    hi_m = hi + m.margin
-    n_lo = np.ceil((lo - lo_m) / m.voxel_size - 1e-9)
-    bmin = lo - n_lo * m.voxel_size
-    dims = tuple(int(x) for x in np.ceil((hi_m - bmin) / m.voxel_size - 1e-9))
-    return GridSpec(bmin, float(m.voxel_size), dims)
+    res = float(m.voxel_size)
+    lo = np.array(sc.scene.bbox_min, float) - np.array([m.margin, m.margin, 0.0])
+    hi = np.array(sc.scene.bbox_max, float) + m.margin
+    i_lo = np.floor(lo / res + 1e-9).astype(int)
+    i_hi = np.ceil(hi / res - 1e-9).astype(int)
+    return GridSpec(i_lo * res, res, tuple(int(x) for x in (i_hi - i_lo)))
 
 
 class OccupancyMap:

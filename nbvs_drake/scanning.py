@@ -1,0 +1,75 @@
+"""Rendering scans of a scenario's scene at given robot states, outside a mission: the same
+plant, scene and RgbdSensor as the mission diagram, for benchmarks, parity checks and
+notebooks."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from pathlib import Path
+
+import numpy as np
+
+from .config import Scenario, resolve_sensor
+from .mapping.occupancy import OccupancyMap
+from .objects import build_object
+from .robot import RobotKinematics, add_robot
+from .scene import add_environment
+from .sensor import ray_directions
+
+
+@dc.dataclass
+class Scan:
+    X_WC: np.ndarray  #: camera pose (4, 4)
+    points: np.ndarray  #: finite returns, world frame (N, 3)
+    free_rays: np.ndarray  #: end points at maximum range of the no-return pixels (M, 3)
+
+    @property
+    def origin(self) -> np.ndarray:
+        return self.X_WC[:3, 3]
+
+
+class ScanRenderer:
+    def __init__(self, sc: Scenario, work_dir: Path, kin: RobotKinematics | None = None):
+        from pydrake.geometry import SceneGraph
+        from pydrake.multibody.plant import MultibodyPlant
+        from pydrake.systems.framework import DiagramBuilder
+        from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+        from .systems.depth_camera import CameraPose, add_depth_camera, add_renderer
+
+        self.sc = sc
+        self.kin = kin or RobotKinematics(sc.robot.urdf)
+        obj = build_object(sc).write_obj(Path(work_dir) / "object.obj")
+        builder = DiagramBuilder()
+        sg = builder.AddSystem(SceneGraph())
+        add_renderer(sg)
+        plant = MultibodyPlant(0.0)
+        plant.RegisterAsSourceForSceneGraph(sg)
+        add_robot(plant, sc.robot.urdf)
+        add_environment(plant, sc, object_obj=str(obj))
+        plant.Finalize()
+        to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
+        builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
+        self.rgbd, self.to_pc = add_depth_camera(builder, sg, plant, sc.sensor)
+        pose = builder.AddSystem(CameraPose(self.kin))
+        builder.Connect(pose.get_output_port(), self.to_pc.camera_pose_input_port())
+        builder.ExportInput(to_pose.get_input_port(), "positions")
+        builder.ExportInput(pose.get_input_port(), "state")
+        self.plant = plant
+        self.diagram = builder.Build()
+        self.context = self.diagram.CreateDefaultContext()
+        self.dirs = ray_directions(sc.sensor, 1)[0]
+        self.z_far = resolve_sensor(sc.sensor).z_far
+
+    def scan(self, q) -> Scan:
+        from .systems.octree_mapper import clean_scan, no_return_rays
+        q = np.asarray(q, float)
+        self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))
+        self.diagram.get_input_port(1).FixValue(self.context, q)
+        ctx_pc = self.to_pc.GetMyContextFromRoot(self.context)
+        pts = clean_scan(self.to_pc.point_cloud_output_port().Eval(ctx_pc).xyzs())
+        depth = self.rgbd.depth_image_32F_output_port().Eval(self.rgbd.GetMyContextFromRoot(self.context)).data
+        X = self.kin.camera_poses(q)[0]
+        return Scan(X, pts, no_return_rays(depth, X, self.dirs, self.z_far))
+
+    def integrate(self, omap: OccupancyMap, scan: Scan) -> OccupancyMap:
+        return omap.integrate(scan.origin, scan.points, self.sc.mapper.table_clearance, scan.free_rays)[0]

@@ -111,7 +111,14 @@ class PlannerConfig:
         default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     use_distance: bool = True
     ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
-    max_generation_factor: int = 60  #: at most this many x n_candidates raw samples
+    #: hierarchical ray tracing resolution parameter a (seed 000 §5.4): 0 = uniform ray
+    #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
+    hrt_a: int = 0
+    #: candidates' director ray must enter W_box within this distance (m): the working range
+    #: where the sensor samples a surface densely enough for the coverage threshold
+    #: (SR4000: 4.5 mrad per pixel -> 4.5 mm spacing at 1 m); 0: the sensor's z_far
+    max_view_distance: float = 1.0
+    max_generation_factor: int = 200  #: at most this many x n_candidates raw samples
 
 
 @dc.dataclass
@@ -254,7 +261,10 @@ def validate(sc: Scenario) -> Scenario:
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),
              f"planner.weights must be 8 numbers >= 0, got {p.weights}")
     _require(p.ray_stride >= 1, f"planner.ray_stride must be >= 1, got {p.ray_stride}")
+    _require(0 <= p.hrt_a <= 4, f"planner.hrt_a must be in 0..4, got {p.hrt_a}")
     _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
+    _require(p.max_view_distance == 0 or p.max_view_distance > rs.z_near,
+             f"planner.max_view_distance must be 0 or beyond the sensor's z_near ({rs.z_near}), got {p.max_view_distance}")
 
     _require(sc.mission.max_scans >= 1, f"mission.max_scans must be >= 1, got {sc.mission.max_scans}")
     _require(sc.mission.max_sim_time > 0, "mission.max_sim_time must be > 0")

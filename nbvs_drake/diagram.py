@@ -32,16 +32,35 @@ class MissionDiagram:
     plant: object  # kept alive: MultibodyPositionToGeometryPose refers to it
 
 
+def add_robot_and_scene(builder, sc: Scenario, object_obj: str | None):
+    """SceneGraph (with the VTK renderer) + a MultibodyPlant of the robot and the scene whose
+    poses come from a MultibodyPositionToGeometryPose. Returns (scene_graph, plant, to_pose);
+    to_pose's input takes the plant positions. The plant is not part of the diagram: keep a
+    reference to it as long as the diagram lives."""
+    from pydrake.geometry import SceneGraph
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+    from .systems.depth_camera import add_renderer
+
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    add_renderer(scene_graph)
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    add_robot(plant, sc.robot.urdf)
+    add_environment(plant, sc, object_obj=object_obj)
+    plant.Finalize()
+    to_pose = builder.AddNamedSystem("position_to_geometry_pose", MultibodyPositionToGeometryPose(plant))
+    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    return scene_graph, plant, to_pose
+
+
 def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiagram:
     """`work_dir` receives the object's OBJ (rendered by VTK); `log` is the IterationLog the
     MissionRecorder writes to (None: no recorder, e.g. for drawing the wiring)."""
-    from pydrake.multibody.plant import MultibodyPlant
     from pydrake.systems.framework import DiagramBuilder
-    from pydrake.geometry import SceneGraph
-    from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
     from .systems.collision_monitor import CollisionMonitor
-    from .systems.depth_camera import CameraPose, add_depth_camera, add_renderer
+    from .systems.depth_camera import CameraPose, add_depth_camera
     from .systems.kinematic_plant import KinematicPlant
     from .systems.mission_recorder import MissionRecorder
     from .systems.nbvs_planner import NBVSPlanner
@@ -58,15 +77,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiag
     dt = sc.robot.control_dt
 
     builder = DiagramBuilder()
-    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    add_renderer(scene_graph)
-    plant = MultibodyPlant(0.0)
-    plant.RegisterAsSourceForSceneGraph(scene_graph)
-    add_robot(plant, sc.robot.urdf)
-    add_environment(plant, sc, object_obj=str(obj_path))
-    plant.Finalize()
-    to_pose = builder.AddNamedSystem("position_to_geometry_pose", MultibodyPositionToGeometryPose(plant))
-    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    scene_graph, plant, to_pose = add_robot_and_scene(builder, sc, str(obj_path))
 
     planning_model = CollisionModel(sc, kin)
     truth_model = CollisionModel(sc, kin, object_obj=str(obj_path))

@@ -75,6 +75,8 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
 
     write_ply(out / "model.ply", omap.object_points)
     omap.save_npz(out / "map.npz")
+    from .mapping.octomap_io import write_bt
+    write_bt(omap, out / "map.bt")
     records = log.records
     from .plots import plot_coverage
     plot_coverage(records, out / "coverage.png", title=f"{sc.name} (seed {sc.seed})")

@@ -12,8 +12,7 @@ import numpy as np
 from .config import Scenario, resolve_sensor
 from .mapping.occupancy import OccupancyMap
 from .objects import build_object
-from .robot import RobotKinematics, add_robot
-from .scene import add_environment
+from .robot import RobotKinematics
 from .sensor import ray_directions
 
 
@@ -30,25 +29,15 @@ class Scan:
 
 class ScanRenderer:
     def __init__(self, sc: Scenario, work_dir: Path, kin: RobotKinematics | None = None):
-        from pydrake.geometry import SceneGraph
-        from pydrake.multibody.plant import MultibodyPlant
         from pydrake.systems.framework import DiagramBuilder
-        from pydrake.systems.rendering import MultibodyPositionToGeometryPose
-        from .systems.depth_camera import CameraPose, add_depth_camera, add_renderer
+        from .diagram import add_robot_and_scene
+        from .systems.depth_camera import CameraPose, add_depth_camera
 
         self.sc = sc
         self.kin = kin or RobotKinematics(sc.robot.urdf)
         obj = build_object(sc).write_obj(Path(work_dir) / "object.obj")
         builder = DiagramBuilder()
-        sg = builder.AddSystem(SceneGraph())
-        add_renderer(sg)
-        plant = MultibodyPlant(0.0)
-        plant.RegisterAsSourceForSceneGraph(sg)
-        add_robot(plant, sc.robot.urdf)
-        add_environment(plant, sc, object_obj=str(obj))
-        plant.Finalize()
-        to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
-        builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
+        sg, plant, to_pose = add_robot_and_scene(builder, sc, str(obj))
         self.rgbd, self.to_pc = add_depth_camera(builder, sg, plant, sc.sensor)
         pose = builder.AddSystem(CameraPose(self.kin))
         builder.Connect(pose.get_output_port(), self.to_pc.camera_pose_input_port())

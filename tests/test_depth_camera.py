@@ -1,30 +1,18 @@
 """The depth camera renders Drake's scene with RenderEngineVtk; depths match analytic distances."""
 import numpy as np
-from pydrake.geometry import SceneGraph
-from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
-from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from nbvs_drake.config import Scenario
-from nbvs_drake.robot import add_robot
-from nbvs_drake.scene import add_environment
-from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera, add_renderer
+from nbvs_drake.diagram import add_robot_and_scene
+from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera
 from nbvs_drake.systems.octree_mapper import clean_scan
 
 
 def _camera_diagram(kin, q):
     sc = Scenario()
     builder = DiagramBuilder()
-    sg = builder.AddSystem(SceneGraph())
-    add_renderer(sg)
-    plant = MultibodyPlant(0.0)
-    plant.RegisterAsSourceForSceneGraph(sg)
-    add_robot(plant, sc.robot.urdf)
-    add_environment(plant, sc)  # floor + table, no object
-    plant.Finalize()
-    to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
-    builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
+    sg, plant, to_pose = add_robot_and_scene(builder, sc, None)  # floor + table, no object
     src = builder.AddSystem(ConstantVectorSource(kin.to_positions(q)))
     builder.Connect(src.get_output_port(), to_pose.get_input_port())
     rgbd, to_pc = add_depth_camera(builder, sg, plant, sc.sensor)

@@ -24,7 +24,7 @@ def small_run(tmp_path_factory):
 
 def test_short_run_writes_everything(small_run):
     out, s = small_run
-    for f in ("summary.json", "iterations.jsonl", "model.ply", "coverage.png", "map.npz"):
+    for f in ("summary.json", "iterations.jsonl", "model.ply", "coverage.png", "map.npz", "map.bt"):
         assert (out / f).stat().st_size > 0, f
     disk = json.loads((out / "summary.json").read_text())
     for key in ("coverage", "coverage_5mm", "coverage_by_scan", "scans", "collisions",

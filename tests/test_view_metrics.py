@@ -156,6 +156,11 @@ def test_hrt_skips_free_cells_and_accounts_unknown_cells():
     hrt = K.evaluate_views_hrt(lo, 2, *args)[0]
     assert hrt[K.M_VUV] == uni[K.M_VUV] == 1  # the entry voxel of the unknown region
     assert hrt[K.M_SIG] == pytest.approx(uni[K.M_SIG])  # 8 voxels crossed
-    # FIG counts whole coarse cells: 2 cells of 4x4x4 unknown voxels
-    assert hrt[K.M_FIG] == pytest.approx(2 * 64 * math.log(2))
-    assert uni[K.M_FIG] == pytest.approx(8 * math.log(2))
+    # FIG estimates the distinct voxels touched from the voxels crossed: exact for one ray
+    assert hrt[K.M_FIG] == pytest.approx(uni[K.M_FIG]) == pytest.approx(8 * math.log(2))
+    assert hrt[K.M_N_POSTERIOR] == pytest.approx(uni[K.M_N_POSTERIOR]) == 7
+    # many parallel rays through the same cells saturate at the cells' 2 x 64 unknown voxels
+    d2 = np.repeat(d, 50, 0)
+    many = K.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, o[None], np.eye(3)[None], d2, np.zeros(50),
+                                np.full(50, 5.0), L_FREE, L_OCC, 1)[0]
+    assert many[K.M_FIG] == pytest.approx(2 * 64 * math.log(2))

@@ -172,21 +172,82 @@ def entropy_grid(logodds):
     return out
 
 
+@nb.njit(cache=True, inline="always")
+def _fine_segment(logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, t_in, t_out, i_lo, i_hi, j_lo, j_hi,
+                  k_lo, k_hi, l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post,
+                  out, n_unknown):
+    """Exact DDA over the voxels of the ray segment [t_in, t_out] within the index box
+    [i_lo..i_hi] x [j_lo..j_hi] x [k_lo..k_hi], adding to the view's metrics `out`.
+    `n_unknown`: unknown voxels met earlier on this ray. Returns (n_unknown, hit occupied)."""
+    nx, ny, nz = logodds.shape
+    i, si, ti, di = _axis_start_in(ox, dx, t_in, bmin[0], res, i_lo, i_hi)
+    j, sj, tj, dj = _axis_start_in(oy, dy, t_in, bmin[1], res, j_lo, j_hi)
+    k, sk, tk, dk = _axis_start_in(oz, dz, t_in, bmin[2], res, k_lo, k_hi)
+    while True:
+        lv = logodds[i, j, k]
+        flat = (i * ny + j) * nz + k
+        if lv > l_occ:
+            if n_unknown <= max_unknown_before_hit:
+                out[M_OC_RAYS] += 1
+                if st_oc[flat] != vid:
+                    st_oc[flat] = vid
+                    out[M_OC_O] += 1
+            # rear side voxel: the next voxel along the ray
+            i2, j2, k2 = i, j, k
+            if ti <= tj and ti <= tk:
+                i2 += si
+            elif tj <= tk:
+                j2 += sj
+            else:
+                k2 += sk
+            if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz:
+                lb = logodds[i2, j2, k2]
+                if l_free <= lb <= l_occ:
+                    out[M_RSV] += 1
+            return n_unknown, True
+        if lv >= l_free:  # unknown
+            n_unknown += 1
+            if n_unknown == max_unknown_before_hit + 1:
+                out[M_UN_RAYS] += 1
+            h = H[i, j, k]
+            out[M_SIG] += h
+            if st_fig[flat] != vid:
+                st_fig[flat] = vid
+                out[M_FIG] += h
+            if n_unknown == 1:
+                if st_un[flat] != vid:
+                    st_un[flat] = vid
+                    out[M_UN_O] += 1
+                    if st_post[flat] == vid:  # was posterior on an earlier ray: now first
+                        out[M_N_POSTERIOR] -= 1
+            elif st_un[flat] != vid and st_post[flat] != vid:
+                st_post[flat] = vid
+                out[M_N_POSTERIOR] += 1
+        if min(ti, tj, tk) >= t_out:
+            return n_unknown, False
+        if ti <= tj and ti <= tk:
+            i += si
+            ti += di
+            if i < i_lo or i > i_hi:
+                return n_unknown, False
+        elif tj <= tk:
+            j += sj
+            tj += dj
+            if j < j_lo or j > j_hi:
+                return n_unknown, False
+        else:
+            k += sk
+            tk += dk
+            if k < k_lo or k > k_hi:
+                return n_unknown, False
+
+
 @nb.njit(cache=True)
 def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
                    l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out):
     nx, ny, nz = logodds.shape
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
     ox, oy, oz = o[0], o[1], o[2]
-    un = 0
-    oc = 0
-    fig = 0.0
-    sig = 0.0
-    rsv = 0
-    nrays = 0
-    oc_rays = 0
-    un_rays = 0
-    npost = 0
     for r in range(dirs_cam.shape[0]):
         cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
         dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
@@ -195,80 +256,9 @@ def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
         t0, t1 = _clip(ox, oy, oz, dx, dy, dz, t_near[r], t_far[r], bmin[0], bmin[1], bmin[2], ex, ey, ez)
         if t0 > t1:
             continue
-        nrays += 1
-        i, si, ti, di = _axis_start(ox, dx, t0, bmin[0], res, nx)
-        j, sj, tj, dj = _axis_start(oy, dy, t0, bmin[1], res, ny)
-        k, sk, tk, dk = _axis_start(oz, dz, t0, bmin[2], res, nz)
-        seen_unknown = False
-        n_unknown = 0
-        while True:
-            lv = logodds[i, j, k]
-            if lv > l_occ:
-                flat = (i * ny + j) * nz + k
-                if n_unknown <= max_unknown_before_hit:
-                    oc_rays += 1
-                    if st_oc[flat] != vid:
-                        st_oc[flat] = vid
-                        oc += 1
-                # rear side voxel: the next voxel along the ray
-                i2, j2, k2 = i, j, k
-                if ti <= tj and ti <= tk:
-                    i2 += si
-                elif tj <= tk:
-                    j2 += sj
-                else:
-                    k2 += sk
-                if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz:
-                    lb = logodds[i2, j2, k2]
-                    if l_free <= lb <= l_occ:
-                        rsv += 1
-                break
-            if lv >= l_free:  # unknown
-                flat = (i * ny + j) * nz + k
-                n_unknown += 1
-                h = H[i, j, k]
-                sig += h
-                if st_fig[flat] != vid:
-                    st_fig[flat] = vid
-                    fig += h
-                if n_unknown == max_unknown_before_hit + 1:
-                    un_rays += 1
-                if not seen_unknown:
-                    seen_unknown = True
-                    if st_un[flat] != vid:
-                        st_un[flat] = vid
-                        un += 1
-                        if st_post[flat] == vid:  # was posterior on an earlier ray: now first
-                            npost -= 1
-                elif st_un[flat] != vid and st_post[flat] != vid:
-                    st_post[flat] = vid
-                    npost += 1
-            if min(ti, tj, tk) >= t1:
-                break
-            if ti <= tj and ti <= tk:
-                i += si
-                ti += di
-                if i < 0 or i >= nx:
-                    break
-            elif tj <= tk:
-                j += sj
-                tj += dj
-                if j < 0 or j >= ny:
-                    break
-            else:
-                k += sk
-                tk += dk
-                if k < 0 or k >= nz:
-                    break
-    out[M_UN_O] = un
-    out[M_OC_O] = oc
-    out[M_FIG] = fig
-    out[M_SIG] = sig
-    out[M_RSV] = rsv
-    out[M_RAYS] = nrays
-    out[M_OC_RAYS] = oc_rays
-    out[M_UN_RAYS] = un_rays
-    out[M_N_POSTERIOR] = npost
+        out[M_RAYS] += 1
+        _fine_segment(logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, t0, t1, 0, nx - 1, 0, ny - 1, 0, nz - 1,
+                      l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out, 0)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -336,27 +326,20 @@ def coarse_summary(logodds, H, a, l_free, l_occ):
 
 @nb.njit(cache=True)
 def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far,
-                       l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_cfig, st_post, out):
+                       l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_cfig, acc, st_post,
+                       out):
     """Two-level hierarchical traversal. Exact in refined cells (those with an occupied voxel or
     mixed classes); all-free cells are skipped; all-unknown cells are accounted at the coarse
-    level: the entry voxel is the ray's first unknown voxel (exact), FIG adds the cell's
-    entropy sum once per view, SIG the expected number of voxels the segment crosses times the
-    cell's mean entropy, n_posterior the cell's other unknown voxels once per view."""
+    level: the entry voxel is the ray's first unknown voxel (exact); SIG adds the number of
+    voxels the segment crosses times the cell's mean entropy; FIG and n_posterior add the
+    voxels crossed, accumulated over the view's rays and capped at the cell's unknown count
+    (an estimate of the distinct voxels touched)."""
     nx, ny, nz = logodds.shape
     cnx, cny, cnz = bits.shape
     s = 1 << a
     cres = res * s
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
     ox, oy, oz = o[0], o[1], o[2]
-    un = 0
-    oc = 0
-    fig = 0.0
-    sig = 0.0
-    rsv = 0
-    nrays = 0
-    oc_rays = 0
-    un_rays = 0
-    npost = 0
     for r in range(dirs_cam.shape[0]):
         cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
         dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
@@ -365,7 +348,7 @@ def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_ca
         t0, t1 = _clip(ox, oy, oz, dx, dy, dz, t_near[r], t_far[r], bmin[0], bmin[1], bmin[2], ex, ey, ez)
         if t0 > t1:
             continue
-        nrays += 1
+        out[M_RAYS] += 1
         crossing = (abs(dx) + abs(dy) + abs(dz)) / res  # voxel boundaries crossed per metre
         ci, sci, tci, dci = _axis_start(ox, dx, t0, bmin[0], cres, cnx)
         cj, scj, tcj, dcj = _axis_start(oy, dy, t0, bmin[1], cres, cny)
@@ -388,82 +371,32 @@ def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_ca
                     # the ray starts in when it starts inside this cell
                     nvox_here = (tc_out - tc_in) * crossing + (1.0 if tc_in == t0 else 0.0)
                     mean_h = hsum[ci, cj, ck] / nunk[ci, cj, ck]
-                    sig += nvox_here * mean_h
+                    out[M_SIG] += nvox_here * mean_h
                     cflat = (ci * cny + cj) * cnz + ck
                     if st_cfig[cflat] != vid:
                         st_cfig[cflat] = vid
-                        fig += hsum[ci, cj, ck]
-                        npost += nunk[ci, cj, ck] - 1
+                        acc[cflat] = 0.0
+                    # distinct voxels of the cell touched in this view: the voxels the rays
+                    # cross, accumulated over rays, capped at the cell's unknown voxels
+                    add = min(nvox_here, nunk[ci, cj, ck] - acc[cflat])
+                    if add > 0.0:
+                        acc[cflat] += add
+                        out[M_FIG] += add * mean_h
+                        out[M_N_POSTERIOR] += add
                     if n_unknown == 0 and st_un[flat] != vid:
                         st_un[flat] = vid
-                        un += 1
+                        out[M_UN_O] += 1
+                        out[M_N_POSTERIOR] -= 1
                     prev = n_unknown
                     n_unknown += int(nvox_here + 0.5)
                     if prev <= max_unknown_before_hit < n_unknown:
-                        un_rays += 1
+                        out[M_UN_RAYS] += 1
             elif b != C_FREE and b != 0:
-                # refine: exact fine DDA inside this cell's interval
-                i, si, ti, di = _axis_start_in(ox, dx, tc_in, bmin[0], res, ci * s, min(ci * s + s, nx) - 1)
-                j, sj, tj, dj = _axis_start_in(oy, dy, tc_in, bmin[1], res, cj * s, min(cj * s + s, ny) - 1)
-                k, sk, tk, dk = _axis_start_in(oz, dz, tc_in, bmin[2], res, ck * s, min(ck * s + s, nz) - 1)
-                while True:
-                    lv = logodds[i, j, k]
-                    flat = (i * ny + j) * nz + k
-                    if lv > l_occ:
-                        if n_unknown <= max_unknown_before_hit:
-                            oc_rays += 1
-                            if st_oc[flat] != vid:
-                                st_oc[flat] = vid
-                                oc += 1
-                        i2, j2, k2 = i, j, k
-                        if ti <= tj and ti <= tk:
-                            i2 += si
-                        elif tj <= tk:
-                            j2 += sj
-                        else:
-                            k2 += sk
-                        if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz:
-                            lb = logodds[i2, j2, k2]
-                            if l_free <= lb <= l_occ:
-                                rsv += 1
-                        stop = True
-                        break
-                    if lv >= l_free:
-                        n_unknown += 1
-                        if n_unknown == max_unknown_before_hit + 1:
-                            un_rays += 1
-                        h = H[i, j, k]
-                        sig += h
-                        if st_fig[flat] != vid:  # refined cells are never accounted coarsely
-                            st_fig[flat] = vid
-                            fig += h
-                        if n_unknown == 1:
-                            if st_un[flat] != vid:
-                                st_un[flat] = vid
-                                un += 1
-                                if st_post[flat] == vid:
-                                    npost -= 1
-                        elif st_un[flat] != vid and st_post[flat] != vid:
-                            st_post[flat] = vid
-                            npost += 1
-                    tn = min(ti, tj, tk)
-                    if tn >= tc_out - 1e-12:
-                        break
-                    if ti <= tj and ti <= tk:
-                        i += si
-                        ti += di
-                        if i < 0 or i >= nx:
-                            break
-                    elif tj <= tk:
-                        j += sj
-                        tj += dj
-                        if j < 0 or j >= ny:
-                            break
-                    else:
-                        k += sk
-                        tk += dk
-                        if k < 0 or k >= nz:
-                            break
+                # refine: exact fine DDA inside this cell
+                n_unknown, stop = _fine_segment(
+                    logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, tc_in, tc_out,
+                    ci * s, min(ci * s + s, nx) - 1, cj * s, min(cj * s + s, ny) - 1, ck * s, min(ck * s + s, nz) - 1,
+                    l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out, n_unknown)
             if stop or tc_out >= t1:
                 break
             tc_in = tc_out
@@ -482,15 +415,6 @@ def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_ca
                 tck += dck
                 if ck < 0 or ck >= cnz:
                     break
-    out[M_UN_O] = un
-    out[M_OC_O] = oc
-    out[M_FIG] = fig
-    out[M_SIG] = sig
-    out[M_RSV] = rsv
-    out[M_RAYS] = nrays
-    out[M_OC_RAYS] = oc_rays
-    out[M_UN_RAYS] = un_rays
-    out[M_N_POSTERIOR] = npost
 
 
 @nb.njit(cache=True, parallel=True)
@@ -509,6 +433,7 @@ def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near
     st_post = np.zeros((n_chunks, nvox), np.int32)
     st_fig = np.zeros((n_chunks, nvox), np.int32)
     st_cfig = np.zeros((n_chunks, ncell), np.int32)
+    acc = np.zeros((n_chunks, ncell), np.float64)
     per = (n + n_chunks - 1) // n_chunks
     for c in nb.prange(n_chunks):
         lo = c * per
@@ -516,5 +441,5 @@ def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near
         for v in range(lo, hi):
             _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
                                t_near, t_far, l_free, l_occ, max_unknown_before_hit, v + 1,
-                               st_un[c], st_oc[c], st_fig[c], st_cfig[c], st_post[c], out[v])
+                               st_un[c], st_oc[c], st_fig[c], st_cfig[c], acc[c], st_post[c], out[v])
     return out

@@ -22,9 +22,10 @@ from .collision import CollisionModel
 class ViewEvaluator:
     """Scores robot states by simulating their scans in the map (batch numba kernel)."""
 
-    def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None):
+    def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None, hrt_a: int | None = None):
         self.kin = kin
         self.stride = stride or sc.planner.ray_stride
+        self.hrt_a = sc.planner.hrt_a if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
         import numba
         self.n_chunks = max(1, numba.get_num_threads())
@@ -41,10 +42,12 @@ class ViewEvaluator:
         pos = np.ascontiguousarray(X[:, :3, 3])
         rot = np.ascontiguousarray(X[:, :3, :3])
         m = omap.model
-        return K.evaluate_views(np.ascontiguousarray(omap.logodds, dtype=np.float32),
-                                omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot,
-                                self.dirs, self.t_near, self.t_far, m.l_free, m.l_occ,
-                                min(self.n_chunks, len(pos)))
+        lo = np.ascontiguousarray(omap.logodds, dtype=np.float32)
+        args = (omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot, self.dirs, self.t_near,
+                self.t_far, m.l_free, m.l_occ, min(self.n_chunks, len(pos)))
+        if self.hrt_a > 0:
+            return K.evaluate_views_hrt(lo, self.hrt_a, *args)
+        return K.evaluate_views(lo, *args)
 
 
 @dc.dataclass
@@ -79,7 +82,8 @@ def registration_overlap(met: np.ndarray) -> np.ndarray:
 
 
 def director_ray_hits(X: np.ndarray, bmin, bmax, t_near: float, t_far: float) -> np.ndarray:
-    """Whether each camera's optical axis meets the box within [t_near, t_far]."""
+    """Whether each camera's optical axis meets the box within [t_near, t_far] (it enters
+    the box before t_far and leaves it after t_near)."""
     o = X[:, :3, 3]
     d = X[:, :3, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -99,7 +103,8 @@ class RandomSamplingPlanner:
         self.collision = collision
         self.evaluator = evaluator or ViewEvaluator(kin, sc)
         s = resolve_sensor(sc.sensor)
-        self.z_near, self.z_far = s.z_near, s.z_far
+        self.z_near = s.z_near
+        self.z_far = min(s.z_far, sc.planner.max_view_distance or s.z_far)
 
     def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
         lo, hi = self.sc.robot.xy_bounds
@@ -154,28 +159,35 @@ class RandomSamplingPlanner:
         if not np.any(keep):
             return PlanResult("no_candidate", stages=stages, times=times)
 
-        idx = np.flatnonzero(keep)
-        idx = idx[np.argsort(-sur[idx], kind="stable")][: p.top_k]
-        stages["top_k"] = len(idx)
+        ranked = np.flatnonzero(keep)
+        ranked = ranked[np.argsort(-sur[ranked], kind="stable")]
 
+        # steps 7-8: the top k go to motion planning; when none of them can be reached, the
+        # next k of the ranking are tried, until one is reachable or the ranking runs out
         t = time.perf_counter()
         best = None
-        n_path = 0
-        for i in idx:
-            found = self.connect(q_current, cand[i])
-            if found is None:
-                continue
-            n_path += 1
-            kind, controls, states = found
-            rho = path_length(states, p.weights)
-            dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
-            g = 1.0 * 1.0 * sur[i] * dist
-            if best is None or g > best.utility:
-                best = PlanResult("ok", cand[i], controls, states, kind, float(g), {
-                    "pos": 1.0, "reg": 1.0, "sur": float(sur[i]), "dist": float(dist), "rho": float(rho),
-                    "un_o": int(un[i]), "oc_o": int(oc[i]), "overlap": float(overlap[i]),
-                    "un_total": int(un_total)})
+        n_path = n_tried = 0
+        for start in range(0, len(ranked), p.top_k):
+            for i in ranked[start:start + p.top_k]:
+                n_tried += 1
+                found = self.connect(q_current, cand[i])
+                if found is None:
+                    continue
+                n_path += 1
+                kind, controls, states = found
+                rho = path_length(states, p.weights)
+                dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
+                g = 1.0 * 1.0 * sur[i] * dist
+                if best is None or g > best.utility:
+                    best = PlanResult("ok", cand[i], controls, states, kind, float(g), {
+                        "pos": 1.0, "reg": 1.0, "sur": float(sur[i]), "dist": float(dist), "rho": float(rho),
+                        "un_o": int(un[i]), "oc_o": int(oc[i]), "overlap": float(overlap[i]),
+                        "un_total": int(un_total)})
+            if best is not None:
+                break
         times["motion_s"] = time.perf_counter() - t
+        stages["top_k"] = min(p.top_k, len(ranked))
+        stages["motion_tried"] = n_tried
         stages["with_path"] = n_path
         if best is None:
             return PlanResult("no_path", stages=stages, times=times)

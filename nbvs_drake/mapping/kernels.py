@@ -55,22 +55,6 @@ def _clip(o0, o1, o2, d0, d1, d2, tmin, tmax, b0, b1, b2, e0, e1, e2):
 
 
 @nb.njit(cache=True, inline="always")
-def _axis_start(o, d, t0, lo, res, n):
-    """DDA set-up on one axis at parameter t0: (index, step, t of next boundary, t per voxel)."""
-    p = o + t0 * d
-    i = int(math.floor((p - lo) / res))
-    if i < 0:
-        i = 0
-    elif i >= n:
-        i = n - 1
-    if d > 0:
-        return i, 1, (lo + (i + 1) * res - o) / d, res / d
-    if d < 0:
-        return i, -1, (lo + i * res - o) / d, -res / d
-    return i, 0, np.inf, np.inf
-
-
-@nb.njit(cache=True, inline="always")
 def _axis_start_in(o, d, t0, lo, res, i_min, i_max):
     """_axis_start with the index clamped to [i_min, i_max] (a coarse cell's children)."""
     p = o + t0 * d
@@ -84,6 +68,29 @@ def _axis_start_in(o, d, t0, lo, res, i_min, i_max):
     if d < 0:
         return i, -1, (lo + i * res - o) / d, -res / d
     return i, 0, np.inf, np.inf
+
+
+@nb.njit(cache=True, inline="always")
+def _axis_start(o, d, t0, lo, res, n):
+    """DDA set-up on one axis at parameter t0: (index, step, t of next boundary, t per voxel)."""
+    return _axis_start_in(o, d, t0, lo, res, 0, n - 1)
+
+
+@nb.njit(cache=True, inline="always")
+def _dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk, i_lo, i_hi, j_lo, j_hi, k_lo, k_hi):
+    """Amanatides & Woo: moves to the next voxel along the ray (the axis whose boundary comes
+    first). Returns (i, j, k, ti, tj, tk, still inside [lo..hi] on every axis)."""
+    if ti <= tj and ti <= tk:
+        i += si
+        ti += di
+        return i, j, k, ti, tj, tk, i_lo <= i <= i_hi
+    if tj <= tk:
+        j += sj
+        tj += dj
+        return i, j, k, ti, tj, tk, j_lo <= j <= j_hi
+    k += sk
+    tk += dk
+    return i, j, k, ti, tj, tk, k_lo <= k <= k_hi
 
 
 @nb.njit(cache=True)
@@ -121,21 +128,10 @@ def integrate_scan(logodds, bmin, res, origin, points, is_hit, l_hit, l_miss, l_
                 marks[i, j, k] = 1
             if last:
                 break
-            if ti <= tj and ti <= tk:
-                i += si
-                ti += di
-                if i < 0 or i >= nx:
-                    break
-            elif tj <= tk:
-                j += sj
-                tj += dj
-                if j < 0 or j >= ny:
-                    break
-            else:
-                k += sk
-                tk += dk
-                if k < 0 or k >= nz:
-                    break
+            i, j, k, ti, tj, tk, inside = _dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk,
+                                                    0, nx - 1, 0, ny - 1, 0, nz - 1)
+            if not inside:
+                break
     n = 0
     flat = logodds.reshape(-1)
     fm = marks.reshape(-1)
@@ -172,25 +168,42 @@ def entropy_grid(logodds):
     return out
 
 
+@nb.njit(cache=True)
+def classes_grid(logodds, l_free, l_occ):
+    """int8 classes: 0 free, 1 unknown, 2 occupied (the kernels' view of the map)."""
+    out = np.empty(logodds.shape, np.int8)
+    fl = logodds.reshape(-1)
+    fo = out.reshape(-1)
+    for v in range(fl.shape[0]):
+        lv = fl[v]
+        fo[v] = 2 if lv > l_occ else (1 if lv >= l_free else 0)
+    return out
+
+
+# packed per-voxel marks of one view: (view id << 2) | bits
+_FIRST = 1  #: unknown voxel seen first on some ray (or occupied voxel counted in oc_o)
+_POST = 2  #: unknown voxel seen behind another unknown voxel
+
+
 @nb.njit(cache=True, inline="always")
-def _fine_segment(logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, t_in, t_out, i_lo, i_hi, j_lo, j_hi,
-                  k_lo, k_hi, l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post,
-                  out, n_unknown):
+def _fine_segment(cls, H, bmin, res, ox, oy, oz, dx, dy, dz, t_in, t_out, i_lo, i_hi, j_lo, j_hi,
+                  k_lo, k_hi, max_unknown_before_hit, vid, mark, out, n_unknown):
     """Exact DDA over the voxels of the ray segment [t_in, t_out] within the index box
     [i_lo..i_hi] x [j_lo..j_hi] x [k_lo..k_hi], adding to the view's metrics `out`.
     `n_unknown`: unknown voxels met earlier on this ray. Returns (n_unknown, hit occupied)."""
-    nx, ny, nz = logodds.shape
+    nx, ny, nz = cls.shape
     i, si, ti, di = _axis_start_in(ox, dx, t_in, bmin[0], res, i_lo, i_hi)
     j, sj, tj, dj = _axis_start_in(oy, dy, t_in, bmin[1], res, j_lo, j_hi)
     k, sk, tk, dk = _axis_start_in(oz, dz, t_in, bmin[2], res, k_lo, k_hi)
+    tag = vid << 2
     while True:
-        lv = logodds[i, j, k]
-        flat = (i * ny + j) * nz + k
-        if lv > l_occ:
+        c = cls[i, j, k]
+        if c == 2:  # occupied
             if n_unknown <= max_unknown_before_hit:
                 out[M_OC_RAYS] += 1
-                if st_oc[flat] != vid:
-                    st_oc[flat] = vid
+                flat = (i * ny + j) * nz + k
+                if mark[flat] >> 2 != vid:
+                    mark[flat] = tag | _FIRST
                     out[M_OC_O] += 1
             # rear side voxel: the next voxel along the ray
             i2, j2, k2 = i, j, k
@@ -200,65 +213,61 @@ def _fine_segment(logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, t_in, t_out, i_
                 j2 += sj
             else:
                 k2 += sk
-            if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz:
-                lb = logodds[i2, j2, k2]
-                if l_free <= lb <= l_occ:
-                    out[M_RSV] += 1
+            if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz and cls[i2, j2, k2] == 1:
+                out[M_RSV] += 1
             return n_unknown, True
-        if lv >= l_free:  # unknown
+        if c == 1:  # unknown
             n_unknown += 1
             if n_unknown == max_unknown_before_hit + 1:
                 out[M_UN_RAYS] += 1
             h = H[i, j, k]
             out[M_SIG] += h
-            if st_fig[flat] != vid:
-                st_fig[flat] = vid
+            flat = (i * ny + j) * nz + k
+            m = mark[flat]
+            if m >> 2 != vid:
+                m = tag
+            if m & 3 == 0:
                 out[M_FIG] += h
             if n_unknown == 1:
-                if st_un[flat] != vid:
-                    st_un[flat] = vid
-                    out[M_UN_O] += 1
-                    if st_post[flat] == vid:  # was posterior on an earlier ray: now first
+                if m & _FIRST == 0:
+                    if m & _POST:  # was posterior on an earlier ray: now first
                         out[M_N_POSTERIOR] -= 1
-            elif st_un[flat] != vid and st_post[flat] != vid:
-                st_post[flat] = vid
+                    m |= _FIRST
+                    out[M_UN_O] += 1
+            elif m & 3 == 0:
+                m |= _POST
                 out[M_N_POSTERIOR] += 1
+            mark[flat] = m
         if min(ti, tj, tk) >= t_out:
             return n_unknown, False
-        if ti <= tj and ti <= tk:
-            i += si
-            ti += di
-            if i < i_lo or i > i_hi:
-                return n_unknown, False
-        elif tj <= tk:
-            j += sj
-            tj += dj
-            if j < j_lo or j > j_hi:
-                return n_unknown, False
-        else:
-            k += sk
-            tk += dk
-            if k < k_lo or k > k_hi:
-                return n_unknown, False
+        i, j, k, ti, tj, tk, inside = _dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk,
+                                                i_lo, i_hi, j_lo, j_hi, k_lo, k_hi)
+        if not inside:
+            return n_unknown, False
+
+
+@nb.njit(cache=True, inline="always")
+def _world_ray(R, dcam, tn, tf, ox, oy, oz, bmin, ex, ey, ez):
+    """Ray direction in the world (R @ dcam) and its range [tn, tf] clipped to the grid."""
+    dx = R[0, 0] * dcam[0] + R[0, 1] * dcam[1] + R[0, 2] * dcam[2]
+    dy = R[1, 0] * dcam[0] + R[1, 1] * dcam[1] + R[1, 2] * dcam[2]
+    dz = R[2, 0] * dcam[0] + R[2, 1] * dcam[1] + R[2, 2] * dcam[2]
+    t0, t1 = _clip(ox, oy, oz, dx, dy, dz, tn, tf, bmin[0], bmin[1], bmin[2], ex, ey, ez)
+    return dx, dy, dz, t0, t1
 
 
 @nb.njit(cache=True)
-def _eval_one_view(logodds, H, bmin, res, o, R, dirs_cam, t_near, t_far,
-                   l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out):
-    nx, ny, nz = logodds.shape
+def _eval_one_view(cls, H, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit, vid, mark, out):
+    nx, ny, nz = cls.shape
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
     ox, oy, oz = o[0], o[1], o[2]
     for r in range(dirs_cam.shape[0]):
-        cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
-        dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
-        dy = R[1, 0] * cx + R[1, 1] * cy + R[1, 2] * cz
-        dz = R[2, 0] * cx + R[2, 1] * cy + R[2, 2] * cz
-        t0, t1 = _clip(ox, oy, oz, dx, dy, dz, t_near[r], t_far[r], bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        dx, dy, dz, t0, t1 = _world_ray(R, dirs_cam[r], t_near[r], t_far[r], ox, oy, oz, bmin, ex, ey, ez)
         if t0 > t1:
             continue
         out[M_RAYS] += 1
-        _fine_segment(logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, t0, t1, 0, nx - 1, 0, ny - 1, 0, nz - 1,
-                      l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out, 0)
+        _fine_segment(cls, H, bmin, res, ox, oy, oz, dx, dy, dz, t0, t1, 0, nx - 1, 0, ny - 1, 0, nz - 1,
+                      max_unknown_before_hit, vid, mark, out, 0)
 
 
 @nb.njit(cache=True, parallel=True)
@@ -272,21 +281,17 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     (a surface's thickness: grazing rays cross uncleared voxels just in front of it).
     Views are split into `n_chunks` chunks evaluated in parallel."""
     n = cam_pos.shape[0]
-    nvox = logodds.size
     H = entropy_grid(logodds)
+    cls = classes_grid(logodds, l_free, l_occ)
     out = np.zeros((n, N_METRICS))
-    st_un = np.zeros((n_chunks, nvox), np.int32)
-    st_oc = np.zeros((n_chunks, nvox), np.int32)
-    st_fig = np.zeros((n_chunks, nvox), np.int32)
-    st_post = np.zeros((n_chunks, nvox), np.int32)
+    mark = np.zeros((n_chunks, logodds.size), np.int32)
     per = (n + n_chunks - 1) // n_chunks
     for c in nb.prange(n_chunks):
         lo = c * per
         hi = min(n, lo + per)
         for v in range(lo, hi):
-            _eval_one_view(logodds, H, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
-                           t_near, t_far, l_free, l_occ, max_unknown_before_hit, v + 1,
-                           st_un[c], st_oc[c], st_fig[c], st_post[c], out[v])
+            _eval_one_view(cls, H, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
+                           max_unknown_before_hit, v + 1, mark[c], out[v])
     return out
 
 
@@ -325,27 +330,22 @@ def coarse_summary(logodds, H, a, l_free, l_occ):
 
 
 @nb.njit(cache=True)
-def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far,
-                       l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_cfig, acc, st_post,
-                       out):
+def _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far,
+                       max_unknown_before_hit, vid, mark, st_cfig, acc, out):
     """Two-level hierarchical traversal. Exact in refined cells (those with an occupied voxel or
     mixed classes); all-free cells are skipped; all-unknown cells are accounted at the coarse
     level: the entry voxel is the ray's first unknown voxel (exact); SIG adds the number of
     voxels the segment crosses times the cell's mean entropy; FIG and n_posterior add the
     voxels crossed, accumulated over the view's rays and capped at the cell's unknown count
     (an estimate of the distinct voxels touched)."""
-    nx, ny, nz = logodds.shape
+    nx, ny, nz = cls.shape
     cnx, cny, cnz = bits.shape
     s = 1 << a
     cres = res * s
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
     ox, oy, oz = o[0], o[1], o[2]
     for r in range(dirs_cam.shape[0]):
-        cx, cy, cz = dirs_cam[r, 0], dirs_cam[r, 1], dirs_cam[r, 2]
-        dx = R[0, 0] * cx + R[0, 1] * cy + R[0, 2] * cz
-        dy = R[1, 0] * cx + R[1, 1] * cy + R[1, 2] * cz
-        dz = R[2, 0] * cx + R[2, 1] * cy + R[2, 2] * cz
-        t0, t1 = _clip(ox, oy, oz, dx, dy, dz, t_near[r], t_far[r], bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        dx, dy, dz, t0, t1 = _world_ray(R, dirs_cam[r], t_near[r], t_far[r], ox, oy, oz, bmin, ex, ey, ez)
         if t0 > t1:
             continue
         out[M_RAYS] += 1
@@ -383,10 +383,14 @@ def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_ca
                         acc[cflat] += add
                         out[M_FIG] += add * mean_h
                         out[M_N_POSTERIOR] += add
-                    if n_unknown == 0 and st_un[flat] != vid:
-                        st_un[flat] = vid
-                        out[M_UN_O] += 1
-                        out[M_N_POSTERIOR] -= 1
+                    if n_unknown == 0:
+                        m = mark[flat]
+                        if m >> 2 != vid:
+                            m = vid << 2
+                        if m & _FIRST == 0:
+                            mark[flat] = m | _FIRST
+                            out[M_UN_O] += 1
+                            out[M_N_POSTERIOR] -= 1
                     prev = n_unknown
                     n_unknown += int(nvox_here + 0.5)
                     if prev <= max_unknown_before_hit < n_unknown:
@@ -394,27 +398,16 @@ def _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_ca
             elif b != C_FREE and b != 0:
                 # refine: exact fine DDA inside this cell
                 n_unknown, stop = _fine_segment(
-                    logodds, H, bmin, res, ox, oy, oz, dx, dy, dz, tc_in, tc_out,
+                    cls, H, bmin, res, ox, oy, oz, dx, dy, dz, tc_in, tc_out,
                     ci * s, min(ci * s + s, nx) - 1, cj * s, min(cj * s + s, ny) - 1, ck * s, min(ck * s + s, nz) - 1,
-                    l_free, l_occ, max_unknown_before_hit, vid, st_un, st_oc, st_fig, st_post, out, n_unknown)
+                    max_unknown_before_hit, vid, mark, out, n_unknown)
             if stop or tc_out >= t1:
                 break
             tc_in = tc_out
-            if tci <= tcj and tci <= tck:
-                ci += sci
-                tci += dci
-                if ci < 0 or ci >= cnx:
-                    break
-            elif tcj <= tck:
-                cj += scj
-                tcj += dcj
-                if cj < 0 or cj >= cny:
-                    break
-            else:
-                ck += sck
-                tck += dck
-                if ck < 0 or ck >= cnz:
-                    break
+            ci, cj, ck, tci, tcj, tck, inside = _dda_step(ci, cj, ck, sci, scj, sck, tci, tcj, tck, dci, dcj, dck,
+                                                          0, cnx - 1, 0, cny - 1, 0, cnz - 1)
+            if not inside:
+                break
 
 
 @nb.njit(cache=True, parallel=True)
@@ -425,13 +418,10 @@ def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near
     n = cam_pos.shape[0]
     H = entropy_grid(logodds)
     bits, hsum, nunk = coarse_summary(logodds, H, a, l_free, l_occ)
-    nvox = logodds.size
+    cls = classes_grid(logodds, l_free, l_occ)
     ncell = bits.size
     out = np.zeros((n, N_METRICS))
-    st_un = np.zeros((n_chunks, nvox), np.int32)
-    st_oc = np.zeros((n_chunks, nvox), np.int32)
-    st_post = np.zeros((n_chunks, nvox), np.int32)
-    st_fig = np.zeros((n_chunks, nvox), np.int32)
+    mark = np.zeros((n_chunks, logodds.size), np.int32)
     st_cfig = np.zeros((n_chunks, ncell), np.int32)
     acc = np.zeros((n_chunks, ncell), np.float64)
     per = (n + n_chunks - 1) // n_chunks
@@ -439,7 +429,6 @@ def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near
         lo = c * per
         hi = min(n, lo + per)
         for v in range(lo, hi):
-            _eval_one_view_hrt(logodds, H, bits, hsum, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
-                               t_near, t_far, l_free, l_occ, max_unknown_before_hit, v + 1,
-                               st_un[c], st_oc[c], st_fig[c], st_cfig[c], acc[c], st_post[c], out[v])
+            _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
+                               t_near, t_far, max_unknown_before_hit, v + 1, mark[c], st_cfig[c], acc[c], out[v])
     return out

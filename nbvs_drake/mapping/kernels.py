@@ -330,7 +330,7 @@ def coarse_summary(logodds, H, a, l_free, l_occ):
 
 
 @nb.njit(cache=True)
-def _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far,
+def _eval_one_view_hrt(cls, H, bits, hmean, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far,
                        max_unknown_before_hit, vid, mark, st_cfig, acc, out):
     """Two-level hierarchical traversal. Exact in refined cells (those with an occupied voxel or
     mixed classes); all-free cells are skipped; all-unknown cells are accounted at the coarse
@@ -362,15 +362,10 @@ def _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t
             if b == C_UNKNOWN:
                 # homogeneous unknown cell
                 if tc_out > tc_in:
-                    tm = tc_in + 1e-9
-                    fi = min(max(int(math.floor((ox + tm * dx - bmin[0]) / res)), 0), nx - 1)
-                    fj = min(max(int(math.floor((oy + tm * dy - bmin[1]) / res)), 0), ny - 1)
-                    fk = min(max(int(math.floor((oz + tm * dz - bmin[2]) / res)), 0), nz - 1)
-                    flat = (fi * ny + fj) * nz + fk
                     # voxels the segment crosses: one per boundary crossed, plus the voxel
                     # the ray starts in when it starts inside this cell
                     nvox_here = (tc_out - tc_in) * crossing + (1.0 if tc_in == t0 else 0.0)
-                    mean_h = hsum[ci, cj, ck] / nunk[ci, cj, ck]
+                    mean_h = hmean[ci, cj, ck]
                     out[M_SIG] += nvox_here * mean_h
                     cflat = (ci * cny + cj) * cnz + ck
                     if st_cfig[cflat] != vid:
@@ -383,7 +378,12 @@ def _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t
                         acc[cflat] += add
                         out[M_FIG] += add * mean_h
                         out[M_N_POSTERIOR] += add
-                    if n_unknown == 0:
+                    if n_unknown == 0:  # the entry voxel is the ray's first unknown voxel
+                        tm = tc_in + 1e-9
+                        fi = min(max(int(math.floor((ox + tm * dx - bmin[0]) / res)), 0), nx - 1)
+                        fj = min(max(int(math.floor((oy + tm * dy - bmin[1]) / res)), 0), ny - 1)
+                        fk = min(max(int(math.floor((oz + tm * dz - bmin[2]) / res)), 0), nz - 1)
+                        flat = (fi * ny + fj) * nz + fk
                         m = mark[flat]
                         if m >> 2 != vid:
                             m = vid << 2
@@ -418,6 +418,7 @@ def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near
     n = cam_pos.shape[0]
     H = entropy_grid(logodds)
     bits, hsum, nunk = coarse_summary(logodds, H, a, l_free, l_occ)
+    hmean = hsum / np.maximum(nunk, 1)
     cls = classes_grid(logodds, l_free, l_occ)
     ncell = bits.size
     out = np.zeros((n, N_METRICS))
@@ -429,6 +430,6 @@ def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near
         lo = c * per
         hi = min(n, lo + per)
         for v in range(lo, hi):
-            _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
+            _eval_one_view_hrt(cls, H, bits, hmean, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
                                t_near, t_far, max_unknown_before_hit, v + 1, mark[c], st_cfig[c], acc[c], out[v])
     return out

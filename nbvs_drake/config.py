@@ -110,6 +110,12 @@ class PlannerConfig:
     weights: list[float] = dc.field(
         default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     use_distance: bool = True
+    #: "du": deterministic utility g = pos reg sur dist; "eu": expected utility under the
+    #: scenario's control noise (seed 000 Algorithm 1) over the candidates with a path
+    utility: str = "du"
+    eu_samples: int = 500  #: k rollouts per candidate (Table 7: 500)
+    eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
+    eu_gamma: float = 0.05
     ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
     #: hierarchical ray tracing resolution parameter a (seed 000 §5.4): 0 = uniform ray
     #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
@@ -258,6 +264,10 @@ def validate(sc: Scenario) -> Scenario:
     _require(_finite(p.overlap_h) and 0 <= p.overlap_h <= 1,
              f"planner.overlap_h (h) must be in [0, 1], got {p.overlap_h}")
     _require(p.top_k > 0, f"planner.top_k must be > 0, got {p.top_k}")
+    _require(p.utility in ("du", "eu"), f"planner.utility must be 'du' or 'eu', got {p.utility!r}")
+    _require(p.eu_samples >= 1, f"planner.eu_samples must be >= 1, got {p.eu_samples}")
+    _require(0 < p.eu_alpha < 1 and 0 < p.eu_gamma < 0.99,
+             f"planner.eu_alpha and eu_gamma must be in (0, 1), got {p.eu_alpha}, {p.eu_gamma}")
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),
              f"planner.weights must be 8 numbers >= 0, got {p.weights}")
     _require(p.ray_stride >= 1, f"planner.ray_stride must be >= 1, got {p.ray_stride}")

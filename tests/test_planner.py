@@ -100,3 +100,20 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     sim.AdvanceTo(0.55)
     assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 1
     assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "max_scans"
+
+
+def test_planner_with_expected_utility(kin, first_scan_map):
+    import copy
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.n_candidates = 600
+    sc.planner.utility = "eu"
+    sc.planner.eu_samples = 100
+    sc.noise.sigma_v = sc.noise.sigma_w = 0.0
+    pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
+    res = pl.plan(omap, np.array(sc.robot.start), np.random.default_rng(0))
+    assert res.status == "ok"
+    eu = res.factors["eu"]
+    assert eu["feasible"] and eu["k"] == 100 and eu["collided_rollouts"] == 0
+    assert res.utility == pytest.approx(res.factors["du"], rel=1e-9)  # sigma -> 0: EU = DU
+    assert res.stages["eu_feasible"] >= 1 and "expected_utility_s" in res.times

@@ -17,6 +17,7 @@ from ..motion import path_length, rollout, steer
 from ..robot import RobotKinematics
 from ..sensor import ray_directions
 from .collision import CollisionModel
+from .expected_utility import expected_utility, sample_count_bound
 
 
 class ViewEvaluator:
@@ -105,6 +106,13 @@ class RandomSamplingPlanner:
         s = resolve_sensor(sc.sensor)
         self.z_near = s.z_near
         self.z_far = min(s.z_far, sc.planner.max_view_distance or s.z_far)
+        p = sc.planner
+        if p.utility == "eu":
+            need = sample_count_bound(p.eu_alpha, p.eu_gamma)
+            if p.eu_samples < need:
+                import warnings
+                warnings.warn(f"planner.eu_samples = {p.eu_samples} is below the eq. 18 bound {need} for "
+                              f"alpha = {p.eu_alpha}, gamma = {p.eu_gamma}: collisions may go undetected")
 
     def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
         lo, hi = self.sc.robot.xy_bounds
@@ -162,30 +170,47 @@ class RandomSamplingPlanner:
         ranked = np.flatnonzero(keep)
         ranked = ranked[np.argsort(-sur[ranked], kind="stable")]
 
-        # steps 7-8: the top k go to motion planning; when none of them can be reached, the
-        # next k of the ranking are tried, until one is reachable or the ranking runs out
+        # steps 7-8: the top k go to motion planning; when none of them can be reached (or,
+        # with the expected utility, none is feasible under noise), the next k of the ranking
+        # are tried, until one qualifies or the ranking runs out
         t = time.perf_counter()
         best = None
-        n_path = n_tried = 0
+        n_path = n_tried = n_eu_feasible = 0
+        t_eu = 0.0
         for start in range(0, len(ranked), p.top_k):
+            reachable = []
             for i in ranked[start:start + p.top_k]:
                 n_tried += 1
                 found = self.connect(q_current, cand[i])
                 if found is None:
                     continue
-                n_path += 1
                 kind, controls, states = found
                 rho = path_length(states, p.weights)
                 dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
-                g = 1.0 * 1.0 * sur[i] * dist
-                if best is None or g > best.utility:
-                    best = PlanResult("ok", cand[i], controls, states, kind, float(g), {
-                        "pos": 1.0, "reg": 1.0, "sur": float(sur[i]), "dist": float(dist), "rho": float(rho),
-                        "un_o": int(un[i]), "oc_o": int(oc[i]), "overlap": float(overlap[i]),
-                        "un_total": int(un_total)})
+                du = 1.0 * 1.0 * sur[i] * dist  # pos = reg = 1 for the survivors
+                reachable.append(PlanResult("ok", cand[i], controls, states, kind, float(du), {
+                    "pos": 1.0, "reg": 1.0, "sur": float(sur[i]), "dist": float(dist), "rho": float(rho),
+                    "un_o": int(un[i]), "oc_o": int(oc[i]), "overlap": float(overlap[i]),
+                    "un_total": int(un_total), "du": float(du)}))
+            n_path += len(reachable)
+            if p.utility == "eu":
+                te = time.perf_counter()
+                for r in reachable:
+                    eu = self.expected_utility(omap, q_current, r, un_total, rng)
+                    r.factors["eu"] = eu.to_json()
+                    r.utility = eu.value
+                    n_eu_feasible += eu.feasible
+                reachable = [r for r in reachable if r.factors["eu"]["feasible"]]
+                t_eu += time.perf_counter() - te
+            for r in reachable:
+                if best is None or r.utility > best.utility:
+                    best = r
             if best is not None:
                 break
-        times["motion_s"] = time.perf_counter() - t
+        times["motion_s"] = time.perf_counter() - t - t_eu
+        if p.utility == "eu":
+            times["expected_utility_s"] = t_eu
+            stages["eu_feasible"] = n_eu_feasible
         stages["top_k"] = min(p.top_k, len(ranked))
         stages["motion_tried"] = n_tried
         stages["with_path"] = n_path
@@ -193,6 +218,21 @@ class RandomSamplingPlanner:
             return PlanResult("no_path", stages=stages, times=times)
         best.stages, best.times = stages, times
         return best
+
+    def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float) -> np.ndarray:
+        """g = pos * reg * sur * dist of states (N, 8) reached along a path of factor `dist`
+        (pos: collision-free states only are passed in)."""
+        met = self.evaluator.evaluate(omap, states)
+        reg = registration_overlap(met) > self.sc.planner.overlap_h
+        return reg * (met[:, K.M_UN_O] / un_total) * dist
+
+    def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,
+                         rng: np.random.Generator):
+        """Algorithm 1 for one candidate with its control sequence."""
+        p = self.sc.planner
+        return expected_utility(
+            q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
+            self.collision.free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]))
 
     def connect(self, q0: np.ndarray, q1: np.ndarray):
         """First collision-free steering path from q0 to q1: (kind, controls, states) or None."""

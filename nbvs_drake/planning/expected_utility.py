@@ -1,0 +1,72 @@
+"""Expected utility under noisy controls (seed 000 §7.2, Algorithm 1) and the sample-count
+bound of §7.3 (eq. 18).
+
+k rollouts of the motion model the NoisyVelocityController executes (Euler integration of
+u_t + eps_t, eps truncated Gaussian); every intermediate state of every rollout is checked for
+collision with Drake (in batches); any colliding rollout makes the candidate unfeasible (the
+conservative rule of Algorithm 1, line 7). Otherwise the utility of each final state is
+weighted by its probability, the product of the per-step densities computed in log space
+(hundreds of densities underflow) and normalised.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import math
+from typing import Callable
+
+import numpy as np
+
+from ..config import NoiseConfig
+from ..motion import noise_sigmas, rollout, sample_truncated_normal, truncated_normal_logpdf
+
+
+def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> int:
+    """Smallest k with (1 - eta gamma)^k <= alpha (eq. 18): with k rollouts, a trajectory whose
+    error region R meets the obstacles with probability gamma is caught with confidence
+    1 - alpha. eta = 1 / P(R) (1 / 0.997 for beta = 3 sigma)."""
+    if not (0 < alpha < 1) or not (0 < eta * gamma < 1):
+        raise ValueError(f"need 0 < alpha < 1 and 0 < eta*gamma < 1, got alpha={alpha}, eta*gamma={eta * gamma}")
+    return int(math.ceil(math.log(alpha) / math.log(1.0 - eta * gamma) - 1e-12))
+
+
+@dc.dataclass
+class ExpectedUtility:
+    feasible: bool
+    value: float  #: E(x); 0 when unfeasible
+    rollouts: int  #: k
+    rollouts_checked: int  #: rollouts whose states were collision-checked (stops at the first collision)
+    collided_rollouts: int  #: among those checked
+    final_states: np.ndarray | None = None
+    utilities: np.ndarray | None = None
+    weights: np.ndarray | None = None
+
+    def to_json(self) -> dict:
+        return {"feasible": self.feasible, "eu": self.value, "k": self.rollouts,
+                "rollouts_checked": self.rollouts_checked, "collided_rollouts": self.collided_rollouts}
+
+
+def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, noise: NoiseConfig,
+                     rng: np.random.Generator, state_free: Callable[[np.ndarray], np.ndarray],
+                     utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100) -> ExpectedUtility:
+    """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,)."""
+    controls = np.asarray(controls, float)
+    m = len(controls)
+    sigma = noise_sigmas(noise)
+    eps = sample_truncated_normal(rng, sigma, noise.beta, (k, m))
+    states = rollout(q0, controls[None] + eps, dt)  # (k, m+1, 8)
+    checked = collided = 0
+    for start in range(0, k, chunk):
+        block = states[start:start + chunk, 1:]  # intermediate and final states
+        free = state_free(block.reshape(-1, 8)).reshape(block.shape[:2])
+        checked += len(block)
+        bad = int(np.count_nonzero(~free.all(axis=1)))
+        if bad:
+            collided += bad
+            return ExpectedUtility(False, 0.0, k, checked, collided)
+    logp = truncated_normal_logpdf(eps, sigma, noise.beta).sum(axis=1)  # log prod_t p_t
+    w = np.exp(logp - logp.max())
+    w /= w.sum()
+    finals = states[:, -1]
+    g = np.asarray(utility(finals), float)
+    return ExpectedUtility(True, float(np.dot(w, g)), k, checked, 0, finals, g, w)

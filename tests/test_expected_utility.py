@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+
+from nbvs_drake.config import NoiseConfig, Scenario
+from nbvs_drake.motion import rollout, steer
+from nbvs_drake.planning.collision import CollisionModel
+from nbvs_drake.planning.expected_utility import expected_utility, sample_count_bound
+
+
+def test_eq18_sample_bound():
+    assert sample_count_bound(0.01, 0.05, 1 / 0.997) == 90  # seed 000 §7.3
+    assert sample_count_bound(0.01, 0.5) < sample_count_bound(0.01, 0.05) < sample_count_bound(0.001, 0.05)
+    with pytest.raises(ValueError):
+        sample_count_bound(0.01, 1.2)
+
+
+@pytest.fixture(scope="module")
+def grazing(kin):
+    """The base drives 1 m along +y with the arm stretched towards W_box (world +x), its tip
+    about 1.5 cm from the box: free without noise, not with Table 4 noise."""
+    sc = Scenario()
+    model = CollisionModel(sc, kin)
+
+    def q_at(x, y):
+        return np.array([x, y, np.pi / 2, -np.pi / 2, 0.0, 0.0, 0.0, 0.0])
+
+    lo, hi = -1.6, -0.9  # bisect the x where the arm touches W_box
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if model.free(q_at(mid, -0.5))[0] else (lo, mid)
+    x = lo - 0.015
+    q0, q1 = q_at(x, -0.5), q_at(x, 0.5)
+    (_, controls), = [c for c in steer(q0, q1, sc.robot) if c[0] == "together"][:1]
+    states = rollout(q0, controls, sc.robot.control_dt)
+    assert model.path_free(states)
+    return sc, model, q0, controls
+
+
+def test_zero_noise_expected_utility_equals_deterministic(grazing):
+    sc, model, q0, controls = grazing
+    util = lambda s: 1.0 / (1.0 + np.abs(s[:, 1] - 0.5))  # noqa: E731
+    zero = NoiseConfig(sigma_v=0, sigma_w=0, sigma_arm=[0] * 5)
+    eu = expected_utility(q0, controls, sc.robot.control_dt, 50, zero, np.random.default_rng(0), model.free, util)
+    du = util(rollout(q0, controls, sc.robot.control_dt)[-1:])[0]
+    assert eu.feasible and eu.collided_rollouts == 0
+    assert eu.value == pytest.approx(du, rel=1e-12)
+    np.testing.assert_allclose(eu.weights, 1 / 50)
+
+
+def test_grazing_path_is_unfeasible_under_noise_for_large_k(grazing):
+    sc, model, q0, controls = grazing
+    util = lambda s: np.ones(len(s))  # noqa: E731
+    eu = expected_utility(q0, controls, sc.robot.control_dt, 1000, NoiseConfig(), np.random.default_rng(1),
+                          model.free, util)
+    assert not eu.feasible and eu.value == 0.0 < 1.0  # lower than the deterministic utility 1
+    assert eu.collided_rollouts >= 1
+
+
+def test_probabilities_in_log_space_do_not_underflow(kin):
+    # 400 noisy steps: a product of 800 densities underflows in linear space
+    sc = Scenario()
+    controls = np.zeros((400, 7))
+    controls[:, 0] = 0.05
+    noise = NoiseConfig(sigma_v=0.01, sigma_w=0.05)
+    eu = expected_utility(np.array([-1.8, -1.8, 0, 0, 0.3, 0, 0, 0]), controls, 0.1, 64, noise,
+                          np.random.default_rng(2), lambda q: np.ones(len(q), bool), lambda s: s[:, 0])
+    assert eu.feasible and np.all(np.isfinite(eu.weights)) and eu.weights.sum() == pytest.approx(1.0)
+    assert eu.weights.max() < 1.0  # not degenerate
+    assert eu.final_states[:, 0].min() <= eu.value <= eu.final_states[:, 0].max()

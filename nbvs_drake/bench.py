@@ -118,9 +118,50 @@ def _octomap_peer(scan, res, omap, dirs, X_view) -> dict:
             "octomap_version": getattr(pyoctomap, "__version__", "")}
 
 
+def bench_planning(seed: int = 0) -> dict:
+    """One planning step on the default scene after its first scan: random sampling with
+    10,000 candidates (DU), ORT with k = 10,000, the expected utility with k = 500 over the
+    kept candidates (Table 4 noise), and Drake configuration checks per second."""
+    import copy
+    from .planning.ort import ORTPlanner
+    sc = load_scenario()
+    kin = RobotKinematics(sc.robot.urdf)
+    with tempfile.TemporaryDirectory() as tmp:
+        r = ScanRenderer(sc, Path(tmp), kin)
+        omap = r.integrate(OccupancyMap.for_scenario(sc), r.scan(np.array(sc.robot.start)))
+    q0 = np.array(sc.robot.start)
+    out = {"scene": "default (teapot) after the first scan"}
+
+    def timed(planner):
+        t = time.perf_counter()
+        res = planner.plan(omap, q0, np.random.default_rng(seed))
+        return time.perf_counter() - t, res
+
+    du = copy.deepcopy(sc)
+    du.planner.n_candidates = 10_000
+    cm = CollisionModel(du, kin)
+    out["du_plan_s"], res = timed(RandomSamplingPlanner(du, kin, cm))
+    out["du_stages"], out["du_times_s"] = res.stages, res.times
+    eu = copy.deepcopy(du)
+    eu.planner.utility, eu.planner.eu_samples = "eu", 500
+    eu.noise.sigma_v, eu.noise.sigma_w = 0.00165, 0.28  # Table 4
+    out["eu_plan_s_k500"], res = timed(RandomSamplingPlanner(eu, kin, cm))
+    out["eu_times_s"], out["eu_feasible"] = res.times, res.stages.get("eu_feasible")
+    ort = copy.deepcopy(sc)
+    ort.planner.strategy, ort.planner.ort_vertices = "ort", 10_000
+    out["ort_plan_s"], res = timed(ORTPlanner(ort, kin, cm))
+    out["ort_times_s"], out["ort_status"] = res.times, res.status
+    qs = RandomSamplingPlanner(sc, kin, cm).sample_states(np.random.default_rng(seed), 20_000)
+    t = _best_of(lambda: cm.free(qs), 2)
+    out["config_checks_per_s"] = len(qs) / t
+    return out
+
+
 def main(args) -> int:
     if args.what == "visibility":
         res = bench_visibility(n_views=args.views)
+    elif args.what == "planning":
+        res = bench_planning()
     else:
         raise SystemExit(f"unknown benchmark {args.what!r}")
     print(json.dumps(res, indent=None if args.json else 2))

@@ -103,7 +103,15 @@ class MapperConfig:
 
 @dc.dataclass
 class PlannerConfig:
-    strategy: str = "random_sampling"
+    strategy: str = "random_sampling"  #: "random_sampling" (seed 000) or "ort" (seed 003)
+    #: information term of the utility: "sur" (seed 000 surface factor, = VUV / un_total),
+    #: "fig", "sig", "vuv", "rsv" (seed 003; each normalised by the unknown voxels)
+    metric: str = "sur"
+    ort_vertices: int = 10000  #: ORT tree size k (seed 003: 10^4 is the good trade-off)
+    tree_step: float = 1.0  #: tree extension step in the weighted metric of eq. 8
+    #: RRT Ext-Ext nodes when no direct steering path reaches a candidate (Table 1: 10^4);
+    #: 0: direct steering paths only
+    rrt_max_nodes: int = 10000
     n_candidates: int = 4000  #: state samples whose director ray meets W_box
     overlap_h: float = 0.5  #: registration threshold h (Table 1: 50 %)
     top_k: int = 25  #: candidates kept for motion planning (§7.6 step 7)
@@ -258,8 +266,13 @@ def validate(sc: Scenario) -> Scenario:
         nvox *= math.ceil((e + 2 * m.margin) / m.voxel_size)
     _require(nvox <= 20_000_000, f"map too large: {nvox} voxels (raise mapper.voxel_size)")
 
-    _require(p.strategy in ("random_sampling",),
-             f"planner.strategy must be 'random_sampling', got {p.strategy!r}")
+    _require(p.strategy in ("random_sampling", "ort"),
+             f"planner.strategy must be 'random_sampling' or 'ort', got {p.strategy!r}")
+    _require(p.metric in ("sur", "fig", "sig", "vuv", "rsv"),
+             f"planner.metric must be one of sur, fig, sig, vuv, rsv, got {p.metric!r}")
+    _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")
+    _require(p.tree_step > 0, f"planner.tree_step must be > 0, got {p.tree_step}")
+    _require(p.rrt_max_nodes >= 0, f"planner.rrt_max_nodes must be >= 0, got {p.rrt_max_nodes}")
     _require(p.n_candidates > 0, f"planner.n_candidates must be > 0, got {p.n_candidates}")
     _require(_finite(p.overlap_h) and 0 <= p.overlap_h <= 1,
              f"planner.overlap_h (h) must be in [0, 1], got {p.overlap_h}")

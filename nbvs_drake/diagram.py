@@ -32,6 +32,14 @@ class MissionDiagram:
     plant: object  # kept alive: MultibodyPositionToGeometryPose refers to it
 
 
+def make_planner(sc: Scenario, kin: RobotKinematics, collision: CollisionModel):
+    """The planner implementation the scenario selects."""
+    if sc.planner.strategy == "ort":
+        from .planning.ort import ORTPlanner
+        return ORTPlanner(sc, kin, collision)
+    return RandomSamplingPlanner(sc, kin, collision)
+
+
 def add_robot_and_scene(builder, sc: Scenario, object_obj: str | None):
     """SceneGraph (with the VTK renderer) + a MultibodyPlant of the robot and the scene whose
     poses come from a MultibodyPositionToGeometryPose. Returns (scene_graph, plant, to_pose);
@@ -81,7 +89,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiag
 
     planning_model = CollisionModel(sc, kin)
     truth_model = CollisionModel(sc, kin, object_obj=str(obj_path))
-    planner_impl = RandomSamplingPlanner(sc, kin, planning_model)
+    planner_impl = make_planner(sc, kin, planning_model)
 
     kplant = builder.AddNamedSystem("kinematic_plant", KinematicPlant(kin, q0, dt))
     ctrl = builder.AddNamedSystem("noisy_velocity_controller", NoisyVelocityController(sc.noise, sc.seed, dt))

@@ -66,3 +66,22 @@ def test_wiring_picture(tmp_path):
     for name in ("kinematic_plant", "noisy_velocity_controller", "depth_camera", "octree_mapper",
                  "nbvs_planner", "position_to_geometry_pose", "scene_graph"):
         assert f"name={name}" in dot, name
+
+
+@pytest.mark.parametrize("strategy, metric", [("ort", "fig"), ("random_sampling", "rsv")])
+def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric):
+    from nbvs_drake.cli import main
+    y = tmp_path / "s.yaml"
+    y.write_text(f"name: alt\nnoise: {{sigma_v: 0, sigma_w: 0}}\nscene: {{gt_points: 5000}}\n"
+                 f"planner: {{strategy: {strategy}, metric: {metric}, ort_vertices: 300, n_candidates: 500}}\n"
+                 f"mission: {{max_scans: 2}}\n")
+    assert main(["reconstruct", "--scenario", str(y), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["planner"] == strategy and s["scans"] >= 1
+    recs = [json.loads(x) for x in (tmp_path / "o" / "iterations.jsonl").read_text().splitlines()]
+    first = recs[0]["plan"]
+    if strategy == "ort":
+        assert first["stages"]["vertices"] == 300
+    if first["status"] == "ok" and strategy == "ort":
+        assert first["factors"]["metric"] == "fig"
+    assert len(recs) == s["scans"]

@@ -42,7 +42,8 @@ class CollisionModel:
         self.n_checks += len(q)
         if len(q) == 1:
             return np.array([self.checker.CheckConfigCollisionFree(pos[0])])
-        res = self.checker.CheckConfigsCollisionFree(list(pos), parallelize=parallelize)
+        # thread dispatch costs more than it saves on small batches
+        res = self.checker.CheckConfigsCollisionFree(list(pos), parallelize=parallelize and len(q) >= 64)
         return np.asarray(res, bool)
 
     def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
@@ -55,9 +56,7 @@ class CollisionModel:
         # reach of the arm: base translation + rotation x 1.4 m lever, joints x 0.7 m
         move = np.hypot(d[:, 0], d[:, 1]) + 1.4 * d[:, 2] + 0.7 * d[:, 3:].sum(axis=1)
         subs = np.maximum(1, np.ceil(move / max_step)).astype(int)
-        pts = [states[:1]]
-        for i, n in enumerate(subs):
-            a = np.linspace(0, 1, n + 1)[1:, None]
-            pts.append(states[i] + a * (states[i + 1] - states[i]))
-        allq = np.concatenate(pts)
+        seg = np.repeat(np.arange(len(subs)), subs)  # segment of each interpolated state
+        frac = (np.arange(len(seg)) - np.repeat(np.cumsum(subs) - subs, subs) + 1) / np.repeat(subs, subs)
+        allq = np.concatenate([states[:1], states[seg] + frac[:, None] * (states[seg + 1] - states[seg])])
         return bool(np.all(self.free(allq)))

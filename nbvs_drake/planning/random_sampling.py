@@ -82,6 +82,15 @@ def registration_overlap(met: np.ndarray) -> np.ndarray:
     return np.where(tot > 0, oc / np.maximum(tot, 1), 0.0)
 
 
+def information(met: np.ndarray, metric: str, un_total: int) -> np.ndarray:
+    """The information term I(x) of the utility, normalised by the unknown voxels (entropy
+    metrics also by ln 2, a voxel's maximum entropy): sur = VUV = un_o (seed 000 eq. 6),
+    fig, sig, rsv (seed 003)."""
+    col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]
+    norm = un_total * (np.log(2.0) if metric in ("fig", "sig") else 1.0)
+    return met[:, col] / max(norm, 1e-12)
+
+
 def director_ray_hits(X: np.ndarray, bmin, bmax, t_near: float, t_far: float) -> np.ndarray:
     """Whether each camera's optical axis meets the box within [t_near, t_far] (it enters
     the box before t_far and leaves it after t_near)."""
@@ -161,7 +170,7 @@ class RandomSamplingPlanner:
         reg = overlap > p.overlap_h
         stages["registration"] = int(reg.sum())
         un_total = max(omap.unknown_count(), 1)
-        sur = un / un_total
+        sur = information(met, p.metric, un_total)
         keep = reg & (sur > 0)
         stages["surface"] = int(keep.sum())
         if not np.any(keep):
@@ -181,7 +190,7 @@ class RandomSamplingPlanner:
             reachable = []
             for i in ranked[start:start + p.top_k]:
                 n_tried += 1
-                found = self.connect(q_current, cand[i])
+                found = self.connect(q_current, cand[i], rng)
                 if found is None:
                     continue
                 kind, controls, states = found
@@ -224,7 +233,7 @@ class RandomSamplingPlanner:
         (pos: collision-free states only are passed in)."""
         met = self.evaluator.evaluate(omap, states)
         reg = registration_overlap(met) > self.sc.planner.overlap_h
-        return reg * (met[:, K.M_UN_O] / un_total) * dist
+        return reg * information(met, self.sc.planner.metric, un_total) * dist
 
     def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,
                          rng: np.random.Generator):
@@ -234,13 +243,23 @@ class RandomSamplingPlanner:
             q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
             self.collision.free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]))
 
-    def connect(self, q0: np.ndarray, q1: np.ndarray):
-        """First collision-free steering path from q0 to q1: (kind, controls, states) or None."""
+    def path_free(self, states: np.ndarray) -> bool:
+        return bool(np.all(self.kin.arm_within_limits(states))) and self.collision.path_free(states)
+
+    def connect(self, q0: np.ndarray, q1: np.ndarray, rng: np.random.Generator | None = None):
+        """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering
+        function's direct paths first (a tree that connects at its first extension); then
+        RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
         dt = self.sc.robot.control_dt
         for kind, controls in steer(q0, q1, self.sc.robot):
             states = rollout(q0, controls, dt)
-            if not np.all(self.kin.arm_within_limits(states)):
-                continue
-            if self.collision.path_free(states):
+            if self.path_free(states):
                 return kind, controls, states
+        p = self.sc.planner
+        if p.rrt_max_nodes > 0 and rng is not None:
+            from .rrt import rrt_ext_ext
+            res = rrt_ext_ext(q0, q1, self.sc.robot, np.asarray(p.weights), self.sample_states, self.path_free,
+                              self.kin.clip_arm, rng, max_nodes=p.rrt_max_nodes, step=p.tree_step)
+            if res.found:
+                return "rrt", res.controls, res.states
         return None

@@ -1,0 +1,148 @@
+"""Trees in the robot's state space whose edges are exact control sequences: RRT Ext-Ext
+(bidirectional, seed 000 §7.4) from the current state to a candidate, and the growth step
+shared with the Object Reconstruction Tree (seed 003).
+
+An edge from a to b is the steering function's 'together' controls (turn-drive-turn of the
+base with the arm moving alongside), so the controls of a tree path, replayed by the Euler
+model without noise, reach the path's end exactly. Distances are the weighted metric of
+eq. 8 with the base angle wrapped.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+from typing import Callable
+
+import numpy as np
+
+from ..config import RobotConfig
+from ..motion import rollout, steer, wrap_angle
+
+StateSampler = Callable[[np.random.Generator, int], np.ndarray]
+PathFree = Callable[[np.ndarray], bool]
+
+
+def weighted_dist(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """sqrt(sum_j w_j (a_j - b_j)^2) between rows of a (N, 8) and b (8,), angle wrapped."""
+    d = np.asarray(a, float) - np.asarray(b, float)
+    d[..., 2] = wrap_angle(d[..., 2])
+    return np.sqrt(np.sum(w * d * d, axis=-1))
+
+
+def edge(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(controls, states) of the 'together' steering edge from q0 to q1."""
+    kind, controls = steer(q0, q1, rc)[0]
+    return controls, rollout(q0, controls, rc.control_dt)
+
+
+class Tree:
+    """Vertices (states), parent indices and the edge controls from each parent."""
+
+    def __init__(self, root: np.ndarray, capacity: int):
+        self.q = np.empty((capacity + 1, 8))
+        self.q[0] = root
+        self.parent = np.full(capacity + 1, -1, dtype=np.int64)
+        self.cost = np.zeros(capacity + 1)  # eq. 8 path length from the root
+        self.controls: list[np.ndarray] = [np.zeros((0, 7))]
+        self.n = 1
+
+    def nearest(self, q: np.ndarray, w: np.ndarray) -> int:
+        return int(np.argmin(weighted_dist(self.q[: self.n], q, w)))
+
+    def add(self, parent: int, q: np.ndarray, controls: np.ndarray, length: float) -> int:
+        i = self.n
+        self.q[i] = q
+        self.parent[i] = parent
+        self.cost[i] = self.cost[parent] + length
+        self.controls.append(controls)
+        self.n += 1
+        return i
+
+    def path_to(self, i: int) -> list[int]:
+        out = []
+        while i >= 0:
+            out.append(i)
+            i = int(self.parent[i])
+        return out[::-1]
+
+    def controls_to(self, i: int) -> np.ndarray:
+        idx = self.path_to(i)
+        parts = [self.controls[j] for j in idx[1:]]
+        return np.concatenate(parts) if parts else np.zeros((0, 7))
+
+
+def extend(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: RobotConfig,
+           path_free: PathFree, clip_arm: Callable[[np.ndarray], np.ndarray]) -> int | None:
+    """EXTEND: from the nearest vertex towards q_target by at most `step` (weighted metric);
+    adds the new vertex when its steering edge is collision free. Returns its index or None."""
+    from ..motion import path_length
+    i_near = tree.nearest(q_target, w)
+    q_near = tree.q[i_near]
+    d = np.asarray(q_target, float) - q_near
+    d[2] = wrap_angle(d[2])
+    dist = float(np.sqrt(np.sum(w * d * d)))
+    if dist < 1e-9:
+        return None
+    q_new = q_near + d * min(1.0, step / dist)
+    q_new = clip_arm(q_new)
+    controls, states = edge(q_near, q_new, rc)
+    if len(controls) == 0 or not path_free(states):
+        return None
+    return tree.add(i_near, states[-1], controls, path_length(states, w))
+
+
+@dc.dataclass
+class RRTResult:
+    found: bool
+    controls: np.ndarray | None = None
+    states: np.ndarray | None = None
+    vertices: int = 0
+    iterations: int = 0
+
+
+def rrt_ext_ext(q_start: np.ndarray, q_goal: np.ndarray, rc: RobotConfig, w: np.ndarray,
+                sample: StateSampler, path_free: PathFree, clip_arm, rng: np.random.Generator,
+                max_nodes: int = 10_000, step: float = 1.0, connect_tol: float = 0.3,
+                goal_bias: float = 0.1) -> RRTResult:
+    """Bidirectional RRT, both trees extended each iteration (Ext-Ext), the second towards the
+    first's new vertex. When the two new vertices are within `connect_tol` (weighted metric)
+    and the steering edge between them is free, the path start -> ... -> a -> b -> ... -> goal
+    is returned with its controls (edges of the goal tree are re-steered in the travel
+    direction and re-checked)."""
+    ta, tb = Tree(q_start, max_nodes), Tree(q_goal, max_nodes)
+    a_is_start = True
+    it = 0
+    while ta.n + tb.n < max_nodes:
+        it += 1
+        target_tree = tb if rng.random() < goal_bias else None
+        q_rand = target_tree.q[0] if target_tree is not None else sample(rng, 1)[0]
+        ia = extend(ta, q_rand, step, w, rc, path_free, clip_arm)
+        if ia is None:
+            ta, tb, a_is_start = tb, ta, not a_is_start
+            continue
+        ib = extend(tb, ta.q[ia], step, w, rc, path_free, clip_arm)
+        for i_b in ([ib] if ib is not None else []) + [tb.nearest(ta.q[ia], w)]:
+            if weighted_dist(tb.q[i_b][None], ta.q[ia], w)[0] <= connect_tol:
+                res = _join(ta, ia, tb, i_b, a_is_start, rc, path_free)
+                if res is not None:
+                    controls, states = res
+                    return RRTResult(True, controls, states, ta.n + tb.n, it)
+        ta, tb, a_is_start = tb, ta, not a_is_start
+    return RRTResult(False, vertices=ta.n + tb.n, iterations=it)
+
+
+def _join(ta: Tree, ia: int, tb: Tree, ib: int, a_is_start: bool, rc: RobotConfig, path_free: PathFree):
+    s_tree, s_i, g_tree, g_i = (ta, ia, tb, ib) if a_is_start else (tb, ib, ta, ia)
+    parts = [s_tree.controls_to(s_i)]
+    q = s_tree.q[s_i]
+    q_start = s_tree.q[0]
+    # bridge and then down the goal tree towards its root, steering in the travel direction
+    chain = g_tree.path_to(g_i)[::-1]  # g_i ... root(goal)
+    for j in chain:
+        controls, states = edge(q, g_tree.q[j], rc)
+        if len(controls) and not path_free(states):
+            return None
+        parts.append(controls)
+        q = states[-1]
+    controls = np.concatenate(parts)
+    return controls, rollout(q_start, controls, rc.control_dt)

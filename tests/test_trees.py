@@ -1,0 +1,71 @@
+"""RRT Ext-Ext and the Object Reconstruction Tree."""
+import copy
+
+import numpy as np
+import pytest
+
+from nbvs_drake.config import Scenario
+from nbvs_drake.motion import rollout, wrap_angle
+from nbvs_drake.planning.rrt import Tree, rrt_ext_ext, weighted_dist
+
+W = np.array([10, 10, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
+
+
+def _wall_free(states):
+    """A wall at |x| < 0.15 for y < 1.0 (base position only), inside x, y in [-2, 2]."""
+    s = np.atleast_2d(states)
+    # densify: base moves at most 3 cm per control step, check the midpoints too
+    mid = 0.5 * (s[1:] + s[:-1]) if len(s) > 1 else s
+    allq = np.concatenate([s, mid])
+    hit = (np.abs(allq[:, 0]) < 0.15) & (allq[:, 1] < 1.0)
+    out = (np.abs(allq[:, :2]) > 2.0).any(axis=1)
+    return not (hit.any() or out.any())
+
+
+def _sampler(rng, n):
+    q = np.zeros((n, 8))
+    q[:, :2] = rng.uniform(-2, 2, (n, 2))
+    q[:, 2] = rng.uniform(-np.pi, np.pi, n)
+    q[:, 4] = 1.2
+    return q
+
+
+def test_rrt_finds_a_path_around_a_wall_and_its_controls_reach_the_goal():
+    rc = Scenario().robot
+    q0 = np.array([-1.0, 0.0, 0.0, 0, 1.2, 0, 0, 0])
+    q1 = np.array([1.0, 0.0, np.pi, 0, 1.2, 0, 0, 0])
+    assert not _wall_free(rollout(q0, np.tile([0.3, 0, 0, 0, 0, 0, 0], (67, 1)), rc.control_dt))  # straight line blocked
+    res = rrt_ext_ext(q0, q1, rc, W, _sampler, _wall_free, lambda q: q, np.random.default_rng(0),
+                      max_nodes=4000, step=1.5)
+    assert res.found
+    states = rollout(q0, res.controls, rc.control_dt)  # replayed without noise
+    np.testing.assert_allclose(states[-1, :2], q1[:2], atol=1e-9)
+    assert abs(wrap_angle(states[-1, 2] - q1[2])) < 1e-9
+    assert _wall_free(states)
+    assert states[:, 1].max() > 1.0  # it went around the end of the wall
+
+
+def test_tree_paths_and_costs():
+    t = Tree(np.zeros(8), 10)
+    a = t.add(0, np.ones(8), np.zeros((3, 7)), 2.0)
+    b = t.add(a, 2 * np.ones(8), np.zeros((4, 7)), 1.5)
+    assert t.path_to(b) == [0, a, b] and t.cost[b] == 3.5 and len(t.controls_to(b)) == 7
+    assert t.nearest(np.full(8, 1.9), W) == b
+    assert weighted_dist(np.zeros((1, 8)), np.array([0, 0, 2 * np.pi, 0, 0, 0, 0, 0]), W)[0] == pytest.approx(0, abs=1e-9)
+
+
+def test_ort_returns_a_vertex_at_least_as_good_as_the_roots_children(kin, first_scan_map):
+    from nbvs_drake.planning.collision import CollisionModel
+    from nbvs_drake.planning.ort import ORTPlanner
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.ort_vertices = 300
+    pl = ORTPlanner(sc, kin, CollisionModel(sc, kin))
+    res = pl.plan(omap, np.array(sc.robot.start), np.random.default_rng(1))
+    assert res.stages["vertices"] == 300
+    assert res.status == "ok"
+    assert res.utility >= res.factors["best_root_child"]
+    assert res.utility == pytest.approx(res.factors["info"] * res.factors["dist"])
+    end = rollout(np.array(sc.robot.start), res.controls, sc.robot.control_dt)[-1]
+    np.testing.assert_allclose(end, res.q_goal, atol=1e-9)
+    assert pl.collision.path_free(rollout(np.array(sc.robot.start), res.controls, sc.robot.control_dt))

@@ -243,8 +243,12 @@ class RandomSamplingPlanner:
             q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
             self.collision.free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]))
 
-    def path_free(self, states: np.ndarray) -> bool:
-        return bool(np.all(self.kin.arm_within_limits(states))) and self.collision.path_free(states)
+    def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
+        """Arm limits, then the end state alone (one check rejects most failing tree
+        extensions), then the whole path at `max_step` resolution."""
+        if not np.all(self.kin.arm_within_limits(states)) or not self.collision.free(states[-1:])[0]:
+            return False
+        return self.collision.path_free(states, max_step=max_step)
 
     def connect(self, q0: np.ndarray, q1: np.ndarray, rng: np.random.Generator | None = None):
         """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering

@@ -105,7 +105,8 @@ class MapperConfig:
 class PlannerConfig:
     strategy: str = "random_sampling"  #: "random_sampling" (seed 000) or "ort" (seed 003)
     #: information term of the utility: "sur" (seed 000 surface factor, = VUV / un_total),
-    #: "fig", "sig", "vuv", "rsv" (seed 003; each normalised by the unknown voxels)
+    #: "fig", "sig", "vuv", "rsv" (seed 003; each normalised by the unknown voxels),
+    #: "seed001" (voxel-sorted ray casting score of seed 001)
     metric: str = "sur"
     ort_vertices: int = 10000  #: ORT tree size k (seed 003: 10^4 is the good trade-off)
     tree_step: float = 1.0  #: tree extension step in the weighted metric of eq. 8
@@ -268,8 +269,8 @@ def validate(sc: Scenario) -> Scenario:
 
     _require(p.strategy in ("random_sampling", "ort"),
              f"planner.strategy must be 'random_sampling' or 'ort', got {p.strategy!r}")
-    _require(p.metric in ("sur", "fig", "sig", "vuv", "rsv"),
-             f"planner.metric must be one of sur, fig, sig, vuv, rsv, got {p.metric!r}")
+    _require(p.metric in ("sur", "fig", "sig", "vuv", "rsv", "seed001"),
+             f"planner.metric must be one of sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
     _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")
     _require(p.tree_step > 0, f"planner.tree_step must be > 0, got {p.tree_step}")
     _require(p.rrt_max_nodes >= 0, f"planner.rrt_max_nodes must be >= 0, got {p.rrt_max_nodes}")

@@ -68,7 +68,8 @@ def test_wiring_picture(tmp_path):
         assert f"name={name}" in dot, name
 
 
-@pytest.mark.parametrize("strategy, metric", [("ort", "fig"), ("random_sampling", "rsv")])
+@pytest.mark.parametrize("strategy, metric", [("ort", "fig"), ("random_sampling", "rsv"),
+                                              ("random_sampling", "seed001")])
 def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric):
     from nbvs_drake.cli import main
     y = tmp_path / "s.yaml"

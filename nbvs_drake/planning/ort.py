@@ -11,7 +11,7 @@ import numpy as np
 from ..mapping import kernels as K
 from ..mapping.occupancy import OccupancyMap
 from ..motion import rollout
-from .random_sampling import PlanResult, RandomSamplingPlanner, director_ray_hits, information, registration_overlap
+from .random_sampling import PlanResult, RandomSamplingPlanner, director_ray_hits, registration_overlap
 from .rrt import Tree, extend
 
 
@@ -62,7 +62,7 @@ class ORTPlanner(RandomSamplingPlanner):
         overlap = registration_overlap(met)
         reg = overlap > p.overlap_h
         un_total = max(omap.unknown_count(), 1)
-        info = information(met, p.metric, un_total)
+        info = self.evaluator.information(omap, q, met, p.metric, un_total)
         rho = tree.cost[1: tree.n]
         dist = 1.0 / (1.0 + rho) if p.use_distance else np.ones_like(rho)
         g = reg * info * dist

@@ -25,6 +25,7 @@ class ViewEvaluator:
 
     def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None, hrt_a: int | None = None):
         self.kin = kin
+        self.sensor = sc.sensor
         self.stride = stride or sc.planner.ray_stride
         self.hrt_a = sc.planner.hrt_a if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
@@ -38,6 +39,30 @@ class ViewEvaluator:
             return np.zeros((0, K.N_METRICS))
         X = self.kin.camera_poses(q)
         return self.evaluate_poses(omap, X)
+
+    def seed001_score(self, omap: OccupancyMap, q: np.ndarray, w: float = 0.5) -> np.ndarray:
+        """Seed 001's score of states q (voxel-sorted ray casting), within the sensor's range."""
+        from ..mapping import seed001
+        from ..sensor import intrinsics
+        q = np.atleast_2d(q)
+        if len(q) == 0:
+            return np.zeros(0)
+        X = self.kin.camera_poses(q)
+        m = omap.model
+        cls = K.classes_grid(np.ascontiguousarray(omap.logodds, dtype=np.float32), m.l_free, m.l_occ)
+        wd, ht, fx, fy, cx, cy = intrinsics(self.sensor)
+        s = resolve_sensor(self.sensor)
+        res = seed001.voxel_sorted_views(cls, omap.spec.bmin.astype(np.float64), omap.spec.res,
+                                         np.ascontiguousarray(X[:, :3, 3]), np.ascontiguousarray(X[:, :3, :3]),
+                                         fx, fy, cx, cy, wd, ht, s.z_near, s.z_far, min(self.n_chunks, len(q)))
+        outer, inner = seed001.unknown_volumes(cls == 1, omap.spec.res)
+        return seed001.score(res[:, 0], res[:, 1], omap.spec.res, outer, inner, w)
+
+    def information(self, omap: OccupancyMap, q: np.ndarray, met: np.ndarray, metric: str, un_total: int):
+        """The information term of states q whose ray metrics are `met`."""
+        if metric == "seed001":
+            return self.seed001_score(omap, q)
+        return information(met, metric, un_total)
 
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
         pos = np.ascontiguousarray(X[:, :3, 3])
@@ -86,7 +111,7 @@ def information(met: np.ndarray, metric: str, un_total: int) -> np.ndarray:
     """The information term I(x) of the utility, normalised by the unknown voxels (entropy
     metrics also by ln 2, a voxel's maximum entropy): sur = VUV = un_o (seed 000 eq. 6),
     fig, sig, rsv (seed 003)."""
-    col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]
+    col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]  # seed001: ViewEvaluator
     norm = un_total * (np.log(2.0) if metric in ("fig", "sig") else 1.0)
     return met[:, col] / max(norm, 1e-12)
 
@@ -170,7 +195,7 @@ class RandomSamplingPlanner:
         reg = overlap > p.overlap_h
         stages["registration"] = int(reg.sum())
         un_total = max(omap.unknown_count(), 1)
-        sur = information(met, p.metric, un_total)
+        sur = self.evaluator.information(omap, cand, met, p.metric, un_total)
         keep = reg & (sur > 0)
         stages["surface"] = int(keep.sum())
         if not np.any(keep):
@@ -233,7 +258,7 @@ class RandomSamplingPlanner:
         (pos: collision-free states only are passed in)."""
         met = self.evaluator.evaluate(omap, states)
         reg = registration_overlap(met) > self.sc.planner.overlap_h
-        return reg * information(met, self.sc.planner.metric, un_total) * dist
+        return reg * self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total) * dist
 
     def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,
                          rng: np.random.Generator):

@@ -125,6 +125,10 @@ class PlannerConfig:
     eu_samples: int = 500  #: k rollouts per candidate (Table 7: 500)
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
+    #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or
+    #: "voxels" (the map's unknown and occupied voxels as merged boxes, rebuilt per scan)
+    map_obstacles: str = "wbox"
+    max_obstacle_boxes: int = 300
     ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
     #: hierarchical ray tracing resolution parameter a (seed 000 §5.4): 0 = uniform ray
     #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
@@ -285,6 +289,9 @@ def validate(sc: Scenario) -> Scenario:
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),
              f"planner.weights must be 8 numbers >= 0, got {p.weights}")
     _require(p.ray_stride >= 1, f"planner.ray_stride must be >= 1, got {p.ray_stride}")
+    _require(p.map_obstacles in ("wbox", "voxels"),
+             f"planner.map_obstacles must be 'wbox' or 'voxels', got {p.map_obstacles!r}")
+    _require(p.max_obstacle_boxes >= 1, f"planner.max_obstacle_boxes must be >= 1, got {p.max_obstacle_boxes}")
     _require(0 <= p.hrt_a <= 4, f"planner.hrt_a must be in 0..4, got {p.hrt_a}")
     _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
     _require(p.max_view_distance == 0 or p.max_view_distance > rs.z_near,

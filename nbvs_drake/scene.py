@@ -60,7 +60,8 @@ def _pose(center, yaw=0.0):
 
 
 def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
-                    add_wbox_obstacle: bool = False, collision: bool = True, visual: bool = True):
+                    add_wbox_obstacle: bool = False, collision: bool = True, visual: bool = True,
+                    obstacle_boxes=None):
     """Registers the environment on the world body of `plant` (before Finalize).
 
     object_obj: path of the object's OBJ (world-frame vertices) to add as visual (rendered)
@@ -68,6 +69,8 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
         model: the object is unknown to it).
     add_wbox_obstacle: add W_box as a collision-only box (O = W_obj u W_unk u O_env is
         inside W_box u O_env, so this is the conservative obstacle of the unknown region).
+    obstacle_boxes: (centre, size) pairs added as collision-only boxes (the map's unknown
+        and occupied voxels, merged).
     """
     from pydrake.geometry import Box as DBox, Mesh
     from pydrake.multibody.plant import CoulombFriction
@@ -89,6 +92,8 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
                                          np.array([0.85, 0.85, 0.9, 1.0]))
         if collision:
             plant.RegisterCollisionGeometry(world, RigidTransform(), mesh, "object", friction)
+    for n, (c, size) in enumerate(obstacle_boxes or []):
+        plant.RegisterCollisionGeometry(world, _pose(c), DBox(*size), f"map_obstacle_{n}", friction)
     if add_wbox_obstacle:
         lo, hi = np.array(sc.scene.bbox_min), np.array(sc.scene.bbox_max)
         plant.RegisterCollisionGeometry(world, _pose(0.5 * (lo + hi)), DBox(*(hi - lo)), "W_box", friction)

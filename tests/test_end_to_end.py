@@ -68,13 +68,14 @@ def test_wiring_picture(tmp_path):
         assert f"name={name}" in dot, name
 
 
-@pytest.mark.parametrize("strategy, metric", [("ort", "fig"), ("random_sampling", "rsv"),
-                                              ("random_sampling", "seed001")])
-def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric):
+@pytest.mark.parametrize("strategy, metric, obstacles", [("ort", "fig", "wbox"), ("random_sampling", "rsv", "wbox"),
+                                                         ("random_sampling", "seed001", "voxels")])
+def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric, obstacles):
     from nbvs_drake.cli import main
     y = tmp_path / "s.yaml"
     y.write_text(f"name: alt\nnoise: {{sigma_v: 0, sigma_w: 0}}\nscene: {{gt_points: 5000}}\n"
-                 f"planner: {{strategy: {strategy}, metric: {metric}, ort_vertices: 300, n_candidates: 500}}\n"
+                 f"planner: {{strategy: {strategy}, metric: {metric}, ort_vertices: 300, n_candidates: 500, "
+                 f"map_obstacles: {obstacles}}}\n"
                  f"mission: {{max_scans: 2}}\n")
     assert main(["reconstruct", "--scenario", str(y), "--out", str(tmp_path / "o"), "--quiet"]) == 0
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
@@ -85,4 +86,6 @@ def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric)
         assert first["stages"]["vertices"] == 300
     if first["status"] == "ok" and strategy == "ort":
         assert first["factors"]["metric"] == "fig"
+    if obstacles == "voxels":
+        assert 0 < first["stages"]["obstacle_boxes"] <= 300
     assert len(recs) == s["scans"]

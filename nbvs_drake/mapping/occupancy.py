@@ -163,6 +163,18 @@ class OccupancyMap:
         return new, {"points": int(len(points) - n_free), "no_return_rays": n_free,
                      "object_points": int(hit.sum()), "voxels_updated": int(n_upd)}
 
+    def obstacle_boxes(self, max_boxes: int = 300) -> tuple[list, int]:
+        """The unknown and occupied voxels of W_box as at most `max_boxes` merged boxes
+        (centre, size) in metres, conservative (see mapping.boxes). Returns (boxes, block)."""
+        from .boxes import conservative_boxes
+        cen = self.spec.centers()
+        inside = np.all((cen >= self.wbox_min) & (cen <= self.wbox_max), axis=-1)
+        mask = inside & (self.logodds >= self.model.l_free)
+        boxes, block = conservative_boxes(mask, max_boxes)
+        res = self.spec.res
+        out = [(self.spec.bmin + (lo + hi) * res / 2, (hi - lo) * res) for lo, hi in boxes]
+        return out, block
+
     # ---- export --------------------------------------------------------------------
     def save_npz(self, path):
         np.savez_compressed(path, logodds=self.logodds, bmin=self.spec.bmin, res=self.spec.res,

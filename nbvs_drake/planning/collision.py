@@ -13,18 +13,20 @@ from ..scene import add_environment
 class CollisionModel:
     """Batched configuration checks in the robot state layout q = [x, y, theta, q1..q5].
 
-    with_object_mesh: the true object (for detecting real collisions of the executed
-    motion) instead of the planner's conservative W_box obstacle.
+    object_obj: the true object (for detecting real collisions of the executed motion)
+    instead of the planner's conservative W_box obstacle.
+    obstacle_boxes: (centre, size) boxes standing for the unknown and occupied space of the
+    map (seed 000 §3: O = W_obj u W_unk u O_env) instead of the whole W_box.
     """
 
     def __init__(self, sc: Scenario, kin: RobotKinematics, *, object_obj: str | None = None,
-                 padding: float = 0.0):
+                 padding: float = 0.0, obstacle_boxes=None):
         from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
         rdb = RobotDiagramBuilder(time_step=0.0)
         plant = rdb.plant()
         robot = add_robot(plant, sc.robot.urdf)
-        add_environment(plant, sc, object_obj=object_obj, add_wbox_obstacle=object_obj is None,
-                        visual=False)
+        add_environment(plant, sc, object_obj=object_obj, visual=False, obstacle_boxes=obstacle_boxes,
+                        add_wbox_obstacle=object_obj is None and obstacle_boxes is None)
         plant.Finalize()
         self.diagram = rdb.Build()
         self.kin = kin

@@ -47,6 +47,7 @@ class ORTPlanner(RandomSamplingPlanner):
     def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator) -> PlanResult:
         p = self.sc.planner
         times, stages = {}, {}
+        stages.update(self.update_obstacles(omap))
         t = time.perf_counter()
         tree, it = self.grow(q_current, rng)
         times["tree_s"] = time.perf_counter() - t

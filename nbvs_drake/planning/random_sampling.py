@@ -172,9 +172,22 @@ class RandomSamplingPlanner:
         q = np.concatenate(kept) if kept else np.zeros((0, 8))
         return q, raw
 
+    def update_obstacles(self, omap: OccupancyMap) -> dict:
+        """With planner.map_obstacles = voxels, rebuild the collision model from the map's
+        unknown and occupied voxels (once per scan). Returns stats for the report."""
+        p = self.sc.planner
+        if p.map_obstacles != "voxels" or getattr(self, "_obstacles_for", None) == omap.scan_count:
+            return {}
+        t = time.perf_counter()
+        boxes, block = omap.obstacle_boxes(p.max_obstacle_boxes)
+        self.collision = CollisionModel(self.sc, self.kin, obstacle_boxes=boxes)
+        self._obstacles_for = omap.scan_count
+        return {"obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t}
+
     def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator) -> PlanResult:
         p = self.sc.planner
         times, stages = {}, {}
+        stages.update(self.update_obstacles(omap))
         t = time.perf_counter()
         cand, raw = self.generate(rng)
         stages["sampled"] = raw

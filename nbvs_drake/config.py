@@ -103,7 +103,9 @@ class MapperConfig:
 
 @dc.dataclass
 class PlannerConfig:
-    strategy: str = "random_sampling"  #: "random_sampling" (seed 000) or "ort" (seed 003)
+    #: "random_sampling" (seed 000), "ort" (seed 003) or "view_sampling" (seed 001 + IK)
+    strategy: str = "random_sampling"
+    view_poses: int = 60  #: view_sampling: poses per iteration, spread over the clusters
     #: information term of the utility: "sur" (seed 000 surface factor, = VUV / un_total),
     #: "fig", "sig", "vuv", "rsv" (seed 003; each normalised by the unknown voxels),
     #: "seed001" (voxel-sorted ray casting score of seed 001)
@@ -271,8 +273,9 @@ def validate(sc: Scenario) -> Scenario:
         nvox *= math.ceil((e + 2 * m.margin) / m.voxel_size)
     _require(nvox <= 20_000_000, f"map too large: {nvox} voxels (raise mapper.voxel_size)")
 
-    _require(p.strategy in ("random_sampling", "ort"),
-             f"planner.strategy must be 'random_sampling' or 'ort', got {p.strategy!r}")
+    _require(p.strategy in ("random_sampling", "ort", "view_sampling"),
+             f"planner.strategy must be 'random_sampling', 'ort' or 'view_sampling', got {p.strategy!r}")
+    _require(p.view_poses >= 1, f"planner.view_poses must be >= 1, got {p.view_poses}")
     _require(p.metric in ("sur", "fig", "sig", "vuv", "rsv", "seed001"),
              f"planner.metric must be one of sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
     _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")

@@ -37,6 +37,9 @@ def make_planner(sc: Scenario, kin: RobotKinematics, collision: CollisionModel):
     if sc.planner.strategy == "ort":
         from .planning.ort import ORTPlanner
         return ORTPlanner(sc, kin, collision)
+    if sc.planner.strategy == "view_sampling":
+        from .planning.view_sampling import ViewSamplingPlanner
+        return ViewSamplingPlanner(sc, kin, collision)
     return RandomSamplingPlanner(sc, kin, collision)
 
 

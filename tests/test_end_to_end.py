@@ -69,7 +69,8 @@ def test_wiring_picture(tmp_path):
 
 
 @pytest.mark.parametrize("strategy, metric, obstacles", [("ort", "fig", "wbox"), ("random_sampling", "rsv", "wbox"),
-                                                         ("random_sampling", "seed001", "voxels")])
+                                                         ("random_sampling", "seed001", "voxels"),
+                                                         ("view_sampling", "seed001", "wbox")])
 def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric, obstacles):
     from nbvs_drake.cli import main
     y = tmp_path / "s.yaml"

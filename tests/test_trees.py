@@ -69,3 +69,30 @@ def test_ort_returns_a_vertex_at_least_as_good_as_the_roots_children(kin, first_
     end = rollout(np.array(sc.robot.start), res.controls, sc.robot.control_dt)[-1]
     np.testing.assert_allclose(end, res.q_goal, atol=1e-9)
     assert pl.collision.path_free(rollout(np.array(sc.robot.start), res.controls, sc.robot.control_dt))
+
+
+def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
+    from nbvs_drake.mapping.seed001 import unknown_clusters
+    from nbvs_drake.planning.collision import CollisionModel
+    from nbvs_drake.planning.view_sampling import ViewSamplingPlanner
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.view_poses = 20
+    pl = ViewSamplingPlanner(sc, kin, CollisionModel(sc, kin))
+    q, tried = pl.generate(np.random.default_rng(3), omap)
+    assert tried >= 20 and len(q) >= 5
+    assert np.all(kin.arm_within_limits(q))
+    cen = omap.spec.centers()
+    inside = np.all((cen >= omap.wbox_min) & (cen <= omap.wbox_max), axis=-1)
+    unknown = inside & (omap.logodds >= omap.model.l_free) & (omap.logodds <= omap.model.l_occ)
+    _, centroids, _ = unknown_clusters(unknown, cen)
+    X = kin.camera_poses(q)
+    for x in X:
+        o, z = x[:3, 3], x[:3, 2]
+        v = centroids - o
+        along = v @ z
+        off = np.linalg.norm(v - along[:, None] * z, axis=1)
+        # some centroid lies on the optical axis within the IK tolerances (5 deg, 1 cm)
+        assert np.any((along > 0) & (off <= along * np.tan(np.radians(5.0)) + 0.012))
+    res = pl.plan(omap, np.array(sc.robot.start), np.random.default_rng(3))
+    assert res.status == "ok" and res.stages["director_ray"] == len(q)

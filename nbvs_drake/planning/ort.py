@@ -61,7 +61,7 @@ class ORTPlanner(RandomSamplingPlanner):
         met = self.evaluator.evaluate(omap, q)
         times["visibility_s"] = time.perf_counter() - t
         overlap = registration_overlap(met)
-        reg = overlap > p.overlap_h
+        reg = overlap > self.overlap_threshold()
         un_total = max(omap.unknown_count(), 1)
         info = self.evaluator.information(omap, q, met, p.metric, un_total)
         rho = tree.cost[1: tree.n]

@@ -148,6 +148,10 @@ class RandomSamplingPlanner:
                 warnings.warn(f"planner.eu_samples = {p.eu_samples} is below the eq. 18 bound {need} for "
                               f"alpha = {p.eu_alpha}, gamma = {p.eu_gamma}: collisions may go undetected")
 
+    def overlap_threshold(self) -> float:
+        """h of the registration filter reg(x) (seed 000 eq. 5)."""
+        return self.sc.planner.overlap_h
+
     def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
         lo, hi = self.sc.robot.xy_bounds
         q = np.empty((n, 8))
@@ -156,8 +160,9 @@ class RandomSamplingPlanner:
         q[:, 3:] = rng.uniform(self.kin.arm_lower, self.kin.arm_upper, size=(n, 5))
         return q
 
-    def generate(self, rng: np.random.Generator) -> tuple[np.ndarray, int]:
-        """Step 1: uniform samples of the state space whose director ray meets W_box."""
+    def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
+        """Step 1: uniform samples of the state space whose director ray meets W_box. Returns
+        (states, raw samples drawn)."""
         p = self.sc.planner
         bmin, bmax = self.sc.scene.bbox_min, self.sc.scene.bbox_max
         kept, raw = [], 0
@@ -189,7 +194,7 @@ class RandomSamplingPlanner:
         times, stages = {}, {}
         stages.update(self.update_obstacles(omap))
         t = time.perf_counter()
-        cand, raw = self.generate(rng)
+        cand, raw = self.generate(rng, omap)
         stages["sampled"] = raw
         stages["director_ray"] = len(cand)
         times["generate_s"] = time.perf_counter() - t
@@ -205,7 +210,7 @@ class RandomSamplingPlanner:
         un, oc = met[:, K.M_UN_O], met[:, K.M_OC_O]
         stages["visibility"] = int(np.count_nonzero(met[:, K.M_RAYS] > 0))
         overlap = registration_overlap(met)
-        reg = overlap > p.overlap_h
+        reg = overlap > self.overlap_threshold()
         stages["registration"] = int(reg.sum())
         un_total = max(omap.unknown_count(), 1)
         sur = self.evaluator.information(omap, cand, met, p.metric, un_total)
@@ -270,7 +275,7 @@ class RandomSamplingPlanner:
         """g = pos * reg * sur * dist of states (N, 8) reached along a path of factor `dist`
         (pos: collision-free states only are passed in)."""
         met = self.evaluator.evaluate(omap, states)
-        reg = registration_overlap(met) > self.sc.planner.overlap_h
+        reg = registration_overlap(met) > self.overlap_threshold()
         return reg * self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total) * dist
 
     def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,

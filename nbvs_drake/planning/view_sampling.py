@@ -1,0 +1,76 @@
+"""Seed 001's conditional view sampling as a baseline planner: the unknown voxels of W_box are
+grouped into clusters; N poses are spread evenly over the clusters (eq. 1), each a camera
+position at a random distance and direction from its cluster's centroid looking at it; each
+pose becomes a robot state through Drake's InverseKinematics (camera position within 1 cm,
+optical axis within 5 deg of the centroid direction, roll free, joint limits and base bounds).
+The states then go through the same filter cascade and utility as random sampling, but for
+the registration filter, which seed 001 does not have (its robot knows the arm's pose)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..mapping.occupancy import OccupancyMap
+from ..mapping.seed001 import unknown_clusters
+from ..robot import CAMERA_BODY
+from .random_sampling import RandomSamplingPlanner
+
+
+class ViewSamplingPlanner(RandomSamplingPlanner):
+    pos_tol = 0.01
+    angle_tol = np.radians(5.0)
+
+    def overlap_threshold(self) -> float:
+        return -1.0  # no registration filter in seed 001
+
+    def _ik(self, p: np.ndarray, look: np.ndarray, guess: np.ndarray):
+        """A state whose camera is at p looking along `look`, or None."""
+        from pydrake.multibody.inverse_kinematics import InverseKinematics
+        from pydrake.solvers import Solve
+        plant = self.kin.plant
+        cam = plant.GetBodyByName(CAMERA_BODY).body_frame()
+        ik = InverseKinematics(plant)
+        ik.AddPositionConstraint(cam, np.zeros(3), plant.world_frame(), p - self.pos_tol, p + self.pos_tol)
+        ik.AddAngleBetweenVectorsConstraint(cam, np.array([0.0, 0.0, 1.0]), plant.world_frame(), look,
+                                            0.0, self.angle_tol)
+        q = ik.q()
+        lo, hi = self.sc.robot.xy_bounds
+        for a in (0, 1):
+            ik.prog().AddBoundingBoxConstraint(lo, hi, q[self.kin.q_index[a]])
+        ik.prog().SetInitialGuess(q, self.kin.to_positions(guess))
+        res = Solve(ik.prog())
+        if not res.is_success():
+            return None
+        return res.GetSolution(q)[self.kin.q_index]
+
+    def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
+        p = self.sc.planner
+        if omap is None:
+            return np.zeros((0, 8)), 0
+        cen = omap.spec.centers()
+        inside = np.all((cen >= omap.wbox_min) & (cen <= omap.wbox_max), axis=-1)
+        unknown = inside & (omap.logodds >= omap.model.l_free) & (omap.logodds <= omap.model.l_occ)
+        _, centroids, sizes = unknown_clusters(unknown, cen)
+        if len(sizes) == 0:
+            return np.zeros((0, 8)), 0
+        per = max(1, p.view_poses // len(sizes))  # eq. 1: poses per cluster
+        d_max = p.max_view_distance or self.z_far
+        states, tried = [], 0
+        for c in centroids:
+            for _ in range(per):
+                tried += 1
+                u = rng.normal(size=3)
+                u[2] = abs(u[2]) * 0.5  # the front hemisphere above the table
+                u /= np.linalg.norm(u)
+                dist = rng.uniform(self.z_near + 0.1, max(self.z_near + 0.15, d_max))
+                pos = c + dist * u
+                look = (c - pos) / np.linalg.norm(c - pos)
+                # initial guess: base behind the camera, facing the centroid, arm half raised
+                back = pos[:2] - 0.75 * look[:2] / max(np.linalg.norm(look[:2]), 1e-9)
+                heading = np.arctan2(look[1], look[0])
+                guess = np.array([back[0], back[1], heading, 0.0, 0.5, -0.3, -0.3, 0.0])
+                q = self._ik(pos, look, guess)
+                if q is not None:
+                    states.append(q)
+        out = np.array(states) if states else np.zeros((0, 8))
+        return out, tried

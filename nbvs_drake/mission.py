@@ -9,7 +9,6 @@ import os
 import time
 from pathlib import Path
 
-import numpy as np
 
 from .config import Scenario
 from .diagram import build_mission_diagram

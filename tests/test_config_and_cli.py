@@ -4,7 +4,7 @@ import pytest
 
 from nbvs_drake.cli import main
 from nbvs_drake.config import Scenario, load_scenario, resolve_sensor, validate
-from nbvs_drake.errors import MeshError, ScenarioError
+from nbvs_drake.errors import MeshError
 from nbvs_drake.objects import build_object, tessellate_teapot
 
 
@@ -66,7 +66,7 @@ def test_defaults_and_presets():
 def test_mesh_object_from_file(tmp_path):
     # write the teapot as an OBJ and load it back as a "mesh" object, scaled by `size`
     tp = tessellate_teapot(6)
-    path = tp.write_obj(tmp_path / "pot.obj")
+    tp.write_obj(tmp_path / "pot.obj")
     sc = Scenario(base_dir=str(tmp_path))
     sc.scene.object.kind = "mesh"
     sc.scene.object.mesh = "pot.obj"

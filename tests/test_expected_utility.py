@@ -58,7 +58,6 @@ def test_grazing_path_is_unfeasible_under_noise_for_large_k(grazing):
 
 def test_probabilities_in_log_space_do_not_underflow(kin):
     # 400 noisy steps: a product of 800 densities underflows in linear space
-    sc = Scenario()
     controls = np.zeros((400, 7))
     controls[:, 0] = 0.05
     noise = NoiseConfig(sigma_v=0.01, sigma_w=0.05)

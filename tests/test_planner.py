@@ -93,7 +93,6 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     sim.AdvanceTo(0.35)  # same scan: no re-planning
     assert sys_.GetOutputPort("controls").Eval(ctx).plan_id == 1
     # a map that has reached the scan budget stops the mission
-    import copy
     spent = omap.__class__(omap.spec, omap.model, np.array(omap.logodds), np.array(omap.object_points),
                            sc.mission.max_scans, omap.wbox_min, omap.wbox_max)
     port.GetMutableData().set_value(spent)

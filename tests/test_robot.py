@@ -1,5 +1,4 @@
 import numpy as np
-import pytest
 
 from nbvs_drake.robot import ARM_JOINTS, RobotKinematics
 from conftest import random_states

@@ -82,10 +82,7 @@ def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
     q, tried = pl.generate(np.random.default_rng(3), omap)
     assert tried >= 20 and len(q) >= 5
     assert np.all(kin.arm_within_limits(q))
-    cen = omap.spec.centers()
-    inside = np.all((cen >= omap.wbox_min) & (cen <= omap.wbox_max), axis=-1)
-    unknown = inside & (omap.logodds >= omap.model.l_free) & (omap.logodds <= omap.model.l_occ)
-    _, centroids, _ = unknown_clusters(unknown, cen)
+    _, centroids, _ = unknown_clusters(omap.in_wbox() & omap.unknown_mask(), omap.spec.centers())
     X = kin.camera_poses(q)
     for x in X:
         o, z = x[:3, 3], x[:3, 2]

@@ -119,9 +119,18 @@ class OccupancyMap:
         return {"unknown": int((c == UNKNOWN).sum()), "free": int((c == FREE).sum()),
                 "occupied": int((c == OCCUPIED).sum())}
 
-    def unknown_count(self) -> int:
+    def unknown_mask(self) -> np.ndarray:
+        """Voxels of the unknown class (l_free <= l <= l_occ)."""
         lo = self.logodds
-        return int(np.count_nonzero((lo >= self.model.l_free) & (lo <= self.model.l_occ)))
+        return (lo >= self.model.l_free) & (lo <= self.model.l_occ)
+
+    def unknown_count(self) -> int:
+        return int(np.count_nonzero(self.unknown_mask()))
+
+    def in_wbox(self) -> np.ndarray:
+        """Voxels whose centre lies in W_box (the map also covers a margin around it)."""
+        cen = self.spec.centers()
+        return np.all((cen >= self.wbox_min) & (cen <= self.wbox_max), axis=-1)
 
     def probabilities(self) -> np.ndarray:
         return 1.0 / (1.0 + np.exp(-self.logodds.astype(np.float64)))
@@ -167,9 +176,7 @@ class OccupancyMap:
         """The unknown and occupied voxels of W_box as at most `max_boxes` merged boxes
         (centre, size) in metres, conservative (see mapping.boxes). Returns (boxes, block)."""
         from .boxes import conservative_boxes
-        cen = self.spec.centers()
-        inside = np.all((cen >= self.wbox_min) & (cen <= self.wbox_max), axis=-1)
-        mask = inside & (self.logodds >= self.model.l_free)
+        mask = self.in_wbox() & (self.logodds >= self.model.l_free)  # unknown or occupied
         boxes, block = conservative_boxes(mask, max_boxes)
         res = self.spec.res
         out = [(self.spec.bmin + (lo + hi) * res / 2, (hi - lo) * res) for lo, hi in boxes]

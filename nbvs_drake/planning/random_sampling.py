@@ -137,6 +137,7 @@ class RandomSamplingPlanner:
         self.kin = kin
         self.collision = collision
         self.evaluator = evaluator or ViewEvaluator(kin, sc)
+        self._obstacles_for = None  #: scan count the voxel obstacles were built for
         s = resolve_sensor(sc.sensor)
         self.z_near = s.z_near
         self.z_far = min(s.z_far, sc.planner.max_view_distance or s.z_far)
@@ -181,7 +182,7 @@ class RandomSamplingPlanner:
         """With planner.map_obstacles = voxels, rebuild the collision model from the map's
         unknown and occupied voxels (once per scan). Returns stats for the report."""
         p = self.sc.planner
-        if p.map_obstacles != "voxels" or getattr(self, "_obstacles_for", None) == omap.scan_count:
+        if p.map_obstacles != "voxels" or self._obstacles_for == omap.scan_count:
             return {}
         t = time.perf_counter()
         boxes, block = omap.obstacle_boxes(p.max_obstacle_boxes)

@@ -47,10 +47,7 @@ class ViewSamplingPlanner(RandomSamplingPlanner):
         p = self.sc.planner
         if omap is None:
             return np.zeros((0, 8)), 0
-        cen = omap.spec.centers()
-        inside = np.all((cen >= omap.wbox_min) & (cen <= omap.wbox_max), axis=-1)
-        unknown = inside & (omap.logodds >= omap.model.l_free) & (omap.logodds <= omap.model.l_occ)
-        _, centroids, sizes = unknown_clusters(unknown, cen)
+        _, centroids, sizes = unknown_clusters(omap.in_wbox() & omap.unknown_mask(), omap.spec.centers())
         if len(sizes) == 0:
             return np.zeros((0, 8)), 0
         per = max(1, p.view_poses // len(sizes))  # eq. 1: poses per cluster

@@ -146,6 +146,20 @@ class PlannerConfig:
 class MissionConfig:
     max_scans: int = 12
     max_sim_time: float = 7200.0  #: simulated seconds before the run is cut off
+    #: "icp": register each scan against the accumulated model and correct the believed
+    #: pose (planar MAP point-to-plane ICP with the motion model's prior); "none": dead reckoning
+    relocalization: str = "icp"
+    #: after a collision of the executed motion: "stop" the run (the seeds' robot
+    #: experiments) or "continue" (the collision is counted)
+    on_collision: str = "stop"
+    #: stop when the unknown voxels of W_box fall below this many (0: off; the seeds'
+    #: library uses 15)
+    stop_unknown_voxels: int = 0
+    #: stop when the best candidate's information term (sur, or the chosen metric) is below
+    #: this (seed 000 §7.5; 0: off)
+    stop_min_surface: float = 0.0
+    #: stop when the best candidate's utility g (or expected utility) is below this (0: off)
+    stop_min_utility: float = 0.0
 
 
 @dc.dataclass
@@ -301,5 +315,15 @@ def validate(sc: Scenario) -> Scenario:
              f"planner.max_view_distance must be 0 or beyond the sensor's z_near ({rs.z_near}), got {p.max_view_distance}")
 
     _require(sc.mission.max_scans >= 1, f"mission.max_scans must be >= 1, got {sc.mission.max_scans}")
-    _require(sc.mission.max_sim_time > 0, "mission.max_sim_time must be > 0")
+    mi = sc.mission
+    _require(mi.max_sim_time > 0, "mission.max_sim_time must be > 0")
+    _require(mi.relocalization in ("icp", "none"),
+             f"mission.relocalization must be 'icp' or 'none', got {mi.relocalization!r}")
+    _require(mi.on_collision in ("stop", "continue"),
+             f"mission.on_collision must be 'stop' or 'continue', got {mi.on_collision!r}")
+    _require(mi.stop_unknown_voxels >= 0, f"mission.stop_unknown_voxels must be >= 0, got {mi.stop_unknown_voxels}")
+    _require(_finite(mi.stop_min_surface) and 0 <= mi.stop_min_surface < 1,
+             f"mission.stop_min_surface must be in [0, 1), got {mi.stop_min_surface}")
+    _require(_finite(mi.stop_min_utility) and 0 <= mi.stop_min_utility < 1,
+             f"mission.stop_min_utility must be in [0, 1), got {mi.stop_min_utility}")
     return sc

@@ -112,6 +112,8 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiag
     builder.Connect(ctrl.GetOutputPort("status"), mapper.GetInputPort("controller_status"))
     builder.Connect(rgbd.depth_image_32F_output_port(), mapper.GetInputPort("depth_image"))
     builder.Connect(mapper.GetOutputPort("map"), planner.GetInputPort("map"))
+    builder.Connect(mapper.GetOutputPort("pose_correction"), planner.GetInputPort("pose_correction"))
+    builder.Connect(planner.GetOutputPort("controls"), mapper.GetInputPort("controls"))
     builder.Connect(kplant.GetOutputPort("state"), monitor.GetInputPort("state"))
     builder.Connect(ctrl.GetOutputPort("status"), monitor.GetInputPort("controller_status"))
 
@@ -125,7 +127,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiag
         builder.Connect(mapper.GetOutputPort("scan_report"), rec.GetInputPort("scan_report"))
         builder.Connect(planner.GetOutputPort("report"), rec.GetInputPort("plan_report"))
         builder.Connect(kplant.GetOutputPort("state"), rec.GetInputPort("true_state"))
-        builder.Connect(planner.GetOutputPort("believed_state"), rec.GetInputPort("believed_state"))
+        builder.Connect(ctrl.GetOutputPort("status"), rec.GetInputPort("controller_status"))
         builder.Connect(monitor.GetOutputPort("counts"), rec.GetInputPort("collisions"))
         systems["recorder"] = rec
     diagram = builder.Build()

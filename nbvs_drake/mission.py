@@ -9,6 +9,7 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
 
 from .config import Scenario
 from .diagram import build_mission_diagram
@@ -36,6 +37,21 @@ def _write_json(path: Path, obj):
     os.replace(tmp, path)
 
 
+def pose_errors(records: list[dict]) -> dict:
+    """Mean planar position (m) and heading (rad) error at the scans after the first, of the
+    dead-reckoned belief and of the registration-corrected belief against the true state."""
+    from .registration import state_error
+    rows = [r for r in records[1:] if r.get("believed_state") and r.get("corrected_state")]
+    if not rows:
+        return {"scans": 0}
+    b = np.array([state_error(r["true_state"], r["believed_state"]) for r in rows])
+    c = np.array([state_error(r["true_state"], r["corrected_state"]) for r in rows])
+    return {"scans": len(rows),
+            "believed_m": round(float(b[:, 0].mean()), 5), "believed_rad": round(float(b[:, 1].mean()), 5),
+            "corrected_m": round(float(c[:, 0].mean()), 5), "corrected_rad": round(float(c[:, 1].mean()), 5),
+            "icp_applied": int(sum(1 for r in rows if (r["scan"].get("icp") or {}).get("applied")))}
+
+
 def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict:
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import EventStatus
@@ -53,12 +69,19 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
     ctx = sim.get_mutable_context()
     planner = md.systems["planner"]
     rec = md.systems["recorder"]
+    monitor_sys = md.systems["monitor"]
+    halted = {}
 
     def monitor(root_context):
         pctx = planner.GetMyContextFromRoot(root_context)
         stopped = planner.GetOutputPort("stopped").Eval(pctx)[0] > 0.5
         if stopped and rec.written() >= planner.GetOutputPort("report").Eval(pctx).get("scan", 0):
             return EventStatus.ReachedTermination(planner, "mission finished")
+        if sc.mission.on_collision == "stop":
+            counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(root_context))
+            if counts[0] > 0:
+                halted["t"] = root_context.get_time()
+                return EventStatus.ReachedTermination(monitor_sys, "collision")
         return EventStatus.Succeeded()
 
     sim.set_monitor(monitor)
@@ -66,10 +89,9 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
     sim.AdvanceTo(sc.mission.max_sim_time)
     pctx = planner.GetMyContextFromRoot(ctx)
     report = planner.GetOutputPort("report").Eval(pctx)
-    stop_reason = report.get("stop_reason") or "max_sim_time"
+    stop_reason = "collision" if halted else (report.get("stop_reason") or "max_sim_time")
     mapper = md.systems["mapper"]
     omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(ctx))
-    monitor_sys = md.systems["monitor"]
     counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))
 
     write_ply(out / "model.ply", omap.object_points)
@@ -103,6 +125,8 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
         "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
         "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
         "object_points": int(len(omap.object_points)),
+        "relocalization": sc.mission.relocalization,
+        "pose_error": pose_errors(records),
         "sim_time_s": round(ctx.get_time(), 3),
         "times_s": {
             "plan": float(sum(p.get("plan_s", 0.0) for p in plans)),
@@ -111,6 +135,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
             "visibility": stage_total("visibility_s"),
             "motion_planning": stage_total("motion_s"),
             "map_update": float(sum(r["scan"].get("update_s", 0.0) for r in records)),
+            "registration": float(sum(r["scan"].get("register_s", 0.0) for r in records)),
             "render": float(sum(r["scan"].get("render_s", 0.0) for r in records)),
             "coverage_eval": float(sum(r["coverage_s"] for r in records)),
         },

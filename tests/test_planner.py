@@ -1,3 +1,5 @@
+import copy
+
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -84,6 +86,7 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     sim = Simulator(sys_)
     ctx = sim.get_mutable_context()
     port = sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+    sys_.GetInputPort("pose_correction").FixValue(ctx, np.zeros(4))
     sim.AdvanceTo(0.05)
     tau = sys_.GetOutputPort("controls").Eval(ctx)
     rep = sys_.GetOutputPort("report").Eval(ctx)
@@ -99,6 +102,44 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     sim.AdvanceTo(0.55)
     assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 1
     assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "max_scans"
+
+
+def _planner_system_after(sc, planner, omap, correction):
+    q0 = np.array(sc.robot.start)
+    sys_ = NBVSPlanner(sc, planner, q0)
+    ctx = sys_.CreateDefaultContext()
+    sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+    sys_.GetInputPort("pose_correction").FixValue(ctx, np.asarray(correction, float))
+    sim = Simulator(sys_, ctx)
+    sim.AdvanceTo(0.05)
+    return sys_, sim.get_context(), q0
+
+
+def test_planner_corrects_its_belief_and_applies_the_stop_criteria(planner, first_scan_map):
+    from nbvs_drake.registration import Correction
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    # the registration's correction of scan 1 moves the belief before the stop test
+    sc.mission.stop_unknown_voxels = omap.unknown_count() + 1
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, [1, 0.05, -0.02, 0.1])
+    rep = sys_.GetOutputPort("report").Eval(ctx)
+    assert rep["stop_reason"] == "unknown_below_threshold"
+    np.testing.assert_allclose(rep["corrected_state"], Correction(0.05, -0.02, 0.1).apply_state(q0), atol=1e-6)
+    np.testing.assert_allclose(rep["believed_state"], q0, atol=1e-9)
+    np.testing.assert_allclose(sys_.GetOutputPort("believed_state").Eval(ctx), rep["corrected_state"], atol=1e-6)
+    # a correction published for another scan is not applied; the unknown test passes below it
+    sc.mission.stop_unknown_voxels = omap.unknown_count()
+    sc.mission.stop_min_surface = 0.99  # no view sees 99 % of the unknown voxels
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, [7, 0.05, -0.02, 0.1])
+    rep = sys_.GetOutputPort("report").Eval(ctx)
+    assert rep["stop_reason"] == "surface_below_threshold" and rep["status"] == "ok"
+    assert 0 < rep["factors"]["sur"] < 0.99
+    np.testing.assert_allclose(rep["corrected_state"], q0, atol=1e-9)
+    assert sys_.GetOutputPort("controls").Eval(ctx).plan_id == 0  # nothing is executed
+    sc.mission.stop_min_surface = 0.0
+    sc.mission.stop_min_utility = 0.5
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, [0, 0, 0, 0])
+    assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "score_below_threshold"
 
 
 def test_planner_with_expected_utility(kin, first_scan_map):

@@ -87,6 +87,8 @@ class PlanResult:
     factors: dict = dc.field(default_factory=dict)
     stages: dict = dc.field(default_factory=dict)  #: candidates surviving each filter
     times: dict = dc.field(default_factory=dict)  #: seconds per stage
+    #: the candidates that reached motion planning with a path: (state, utility) each
+    candidates: list = dc.field(default_factory=list)
 
     def to_json(self) -> dict:
         d = {"status": self.status, "utility": self.utility, "factors": self.factors,
@@ -94,6 +96,12 @@ class PlanResult:
         if self.q_goal is not None:
             d["q_goal"] = [round(float(v), 6) for v in self.q_goal]
             d["n_controls"] = int(len(self.controls))
+            step = max(1, len(self.states) // 60)
+            path = np.concatenate([self.states[::step], self.states[-1:]])
+            d["path"] = [[round(float(v), 4) for v in s] for s in path]
+        if self.candidates:
+            d["candidates"] = [{"q": [round(float(v), 4) for v in q], "g": round(float(g), 6)}
+                               for q, g in self.candidates]
         return d
 
 
@@ -228,6 +236,7 @@ class RandomSamplingPlanner:
         # are tried, until one qualifies or the ranking runs out
         t = time.perf_counter()
         best = None
+        kept = []
         n_path = n_tried = n_eu_feasible = 0
         t_eu = 0.0
         for start in range(0, len(ranked), p.top_k):
@@ -255,6 +264,7 @@ class RandomSamplingPlanner:
                     n_eu_feasible += eu.feasible
                 reachable = [r for r in reachable if r.factors["eu"]["feasible"]]
                 t_eu += time.perf_counter() - te
+            kept += [(r.q_goal, r.utility) for r in reachable]
             for r in reachable:
                 if best is None or r.utility > best.utility:
                     best = r
@@ -269,7 +279,7 @@ class RandomSamplingPlanner:
         stages["with_path"] = n_path
         if best is None:
             return PlanResult("no_path", stages=stages, times=times)
-        best.stages, best.times = stages, times
+        best.stages, best.times, best.candidates = stages, times, kept
         return best
 
     def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float) -> np.ndarray:
@@ -283,16 +293,40 @@ class RandomSamplingPlanner:
                          rng: np.random.Generator):
         """Algorithm 1 for one candidate with its control sequence."""
         p = self.sc.planner
+        skip = self.escape_prefix(cand.states) or 0  # the nominal path's escape from a colliding start
+        free = self.collision.free
+        if skip:
+            def free(s, m=len(cand.controls)):  # rows: rollouts x states 1..m
+                ok = np.array(self.collision.free(s), bool).reshape(-1, m)
+                ok[:, :skip - 1] = True  # states 1..skip-1 of each rollout
+                return ok.reshape(-1)
         return expected_utility(
             q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
-            self.collision.free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]))
+            free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]))
+
+    #: a believed start state in collision (the belief is uncertain; W_box is a conservative
+    #: obstacle) may be left within this many control steps; the rest of the path is checked
+    max_escape_steps: int = 15
+
+    def escape_prefix(self, states: np.ndarray) -> int | None:
+        """0 when the path starts collision-free; else the index of its first free state if
+        that comes within max_escape_steps, else None."""
+        if self.collision.free(states[:1])[0]:
+            return 0
+        head = states[: self.max_escape_steps + 1]
+        free = np.flatnonzero(self.collision.free(head))
+        return int(free[0]) if len(free) else None
 
     def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
         """Arm limits, then the end state alone (one check rejects most failing tree
-        extensions), then the whole path at `max_step` resolution."""
+        extensions), then the whole path at `max_step` resolution (after the escape prefix
+        of a start state in collision)."""
         if not np.all(self.kin.arm_within_limits(states)) or not self.collision.free(states[-1:])[0]:
             return False
-        return self.collision.path_free(states, max_step=max_step)
+        start = self.escape_prefix(states)
+        if start is None:
+            return False
+        return self.collision.path_free(states[start:], max_step=max_step)
 
     def connect(self, q0: np.ndarray, q1: np.ndarray, rng: np.random.Generator | None = None):
         """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering

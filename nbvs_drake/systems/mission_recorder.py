@@ -41,15 +41,19 @@ class IterationLog:
 class MissionRecorder(LeafSystem):
     """A sink: when the planner has answered scan k (a plan or a stop), it evaluates the map
     after scan k (coverage against the ground truth at 3 mm, 5 mm and one voxel; unknown
-    voxels) and appends iteration k to the IterationLog with the scan and plan reports and
-    the true and believed states.
+    voxels) and appends iteration k to the IterationLog with the scan and plan reports, the
+    true state at the scan, the believed (dead-reckoned) and the corrected (registered)
+    states, and the executed (true) path of the motion that led to scan k. It keeps the map
+    snapshot of every iteration in `maps` (for the replay).
 
     Input ports:
       - map (abstract OccupancyMap)
       - scan_report (abstract ScanReport)
       - plan_report (abstract dict)
-      - true_state (8), believed_state (8)
+      - true_state (8)
       - collisions (3): [collided trajectories, executed trajectories, in collision now]
+      - controller_status (3): [plan_id, steps done, idle]: the true state is sampled
+        while a plan executes.
     Output ports: none (writes files).
     """
 
@@ -62,15 +66,23 @@ class MissionRecorder(LeafSystem):
         self._scan = self.DeclareAbstractInputPort("scan_report", AbstractValue.Make(ScanReport()))
         self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make({}))
         self._true = self.DeclareVectorInputPort("true_state", 8)
-        self._belief = self.DeclareVectorInputPort("believed_state", 8)
         self._coll = self.DeclareVectorInputPort("collisions", 3)
+        self._status = self.DeclareVectorInputPort("controller_status", 3)
         self.DeclarePeriodicPublishEvent(dt, 0.0, self._publish)
         self._t_last = time.perf_counter()
+        self.maps: list[OccupancyMap] = []
+        self._path: list[list[float]] = []
+
+    def _r(self, q) -> list[float]:
+        return [round(float(v), 5) for v in q]
 
     def written(self) -> int:
         return len(self.log.records)
 
     def _publish(self, context):
+        status = self._status.Eval(context)
+        if status[2] < 0.5:  # moving: sample the executed path (a sink's side effect, as the log)
+            self._path.append(self._r(self._true.Eval(context)))
         plan = self._plan.Eval(context)
         k = plan.get("scan", 0)
         if k <= self.written():
@@ -91,12 +103,17 @@ class MissionRecorder(LeafSystem):
             "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
             "object_points": int(len(omap.object_points)),
             "scan": {key: v for key, v in scan.info.items()},
-            "plan": {key: v for key, v in plan.items() if key != "scan"},
+            "plan": {key: v for key, v in plan.items()
+                     if key not in ("scan", "believed_state", "corrected_state")},
             "true_state": [round(float(v), 6) for v in self._true.Eval(context)],
-            "believed_state": [round(float(v), 6) for v in self._belief.Eval(context)],
+            "believed_state": plan.get("believed_state"),
+            "corrected_state": plan.get("corrected_state"),
+            "executed_path": self._path[::2] + self._path[-1:] if self._path else [],
             "collided_trajectories": int(coll[0]), "executed_trajectories": int(coll[1]),
             "coverage_s": t_cov,
             "wall_s": now - self._t_last,
         }
         self._t_last = now
+        self._path = []
+        self.maps.append(omap)
         self.log.append(rec)

@@ -12,6 +12,7 @@ from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..motion import ControlSequence
 from ..planning.random_sampling import PlanResult, RandomSamplingPlanner
+from ..registration import Correction
 
 
 class PlannerMemory:
@@ -30,14 +31,21 @@ class PlannerMemory:
 
 
 class NBVSPlanner(LeafSystem):
-    """After each new scan: stop if the scan budget is spent; otherwise plan the NBVS from the
-    believed state with the configured strategy (random_sampling: seed 000 §7.6 filter
-    cascade, g = pos * reg * sur * dist) and emit its control sequence. When no candidate
-    survives the filters, or none can be reached, it stops and names the reason. The belief
-    after a plan is the plan's final state (dead reckoning).
+    """After each new scan: first the belief is corrected by the scan's registration (the
+    mapper's pose_correction for this scan); then the stop criteria (seed 000 §7.5, seed 001
+    §3.6): the scan budget (max_scans), the unknown voxels of W_box below
+    mission.stop_unknown_voxels (unknown_below_threshold); otherwise it plans the NBVS from
+    the believed state with the configured strategy (random_sampling: seed 000 §7.6 filter
+    cascade, g = pos * reg * sur * dist) and emits its control sequence — unless no candidate
+    survives the filters (no_valid_candidate), none can be reached (no_path), the best
+    candidate's information term is below mission.stop_min_surface
+    (surface_below_threshold) or its utility below mission.stop_min_utility
+    (score_below_threshold). The belief after a plan is the plan's final state (dead
+    reckoning) until the next scan's registration corrects it.
 
     Input ports:
       - map (abstract OccupancyMap).
+      - pose_correction (4): [scan index, dx, dy, dyaw] from the mapper's registration.
     Output ports:
       - controls (abstract ControlSequence): the current plan tau (plan_id 0: none yet).
       - believed_state (8): where the robot believes it is.
@@ -54,6 +62,7 @@ class NBVSPlanner(LeafSystem):
         dt = sc.robot.control_dt
         mem = PlannerMemory(ControlSequence.empty(q0, dt), q0)
         self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
+        self._corr = self.DeclareVectorInputPort("pose_correction", 4)
         self._mem = self.DeclareAbstractState(AbstractValue.Make(mem))
         self.DeclareAbstractOutputPort("controls", lambda: AbstractValue.Make(mem.controls), self._calc_controls,
                                        {self.abstract_state_ticket(self._mem)})
@@ -74,16 +83,31 @@ class NBVSPlanner(LeafSystem):
         k = omap.scan_count
         if k <= mem.planned_for_scan:
             return
-        if k >= self.sc.mission.max_scans:
-            new = PlannerMemory(mem.controls, mem.believed, k, {"scan": k, "status": "stop"}, "max_scans")
+        corr = self._corr.Eval(context)
+        believed = mem.believed
+        if int(round(corr[0])) == k:
+            believed = Correction(*corr[1:]).apply_state(believed)
+        states = {"believed_state": [round(float(v), 6) for v in mem.believed],
+                  "corrected_state": [round(float(v), 6) for v in believed]}
+        mi = self.sc.mission
+        if k >= mi.max_scans:
+            new = PlannerMemory(mem.controls, believed, k, {"scan": k, "status": "stop", **states}, "max_scans")
+        elif mi.stop_unknown_voxels and omap.unknown_count() < mi.stop_unknown_voxels:
+            new = PlannerMemory(mem.controls, believed, k, {"scan": k, "status": "stop", **states},
+                                "unknown_below_threshold")
         else:
             rng = np.random.default_rng([self.sc.seed, 1, k])
             t = time.perf_counter()
-            res: PlanResult = self.planner.plan(omap, mem.believed, rng)
-            rep = {"scan": k, **res.to_json(), "plan_s": time.perf_counter() - t}
+            res: PlanResult = self.planner.plan(omap, believed, rng)
+            rep = {"scan": k, **res.to_json(), "plan_s": time.perf_counter() - t, **states}
+            info = res.factors.get("sur", res.factors.get("info", float("inf")))
             if res.status != "ok":
                 reason = "no_valid_candidate" if res.status == "no_candidate" else "no_path"
-                new = PlannerMemory(mem.controls, mem.believed, k, rep, reason)
+                new = PlannerMemory(mem.controls, believed, k, rep, reason)
+            elif mi.stop_min_surface and info < mi.stop_min_surface:
+                new = PlannerMemory(mem.controls, believed, k, rep, "surface_below_threshold")
+            elif mi.stop_min_utility and res.utility < mi.stop_min_utility:
+                new = PlannerMemory(mem.controls, believed, k, rep, "score_below_threshold")
             else:
                 tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states)
                 rep["plan_id"] = tau.plan_id

@@ -12,6 +12,9 @@ from pydrake.systems.framework import LeafSystem
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
+from ..motion import ControlSequence
+from ..registration import (Correction, RegistrationConfig, RegistrationModel, motion_prior, region_mask,
+                            register_scan)
 from ..sensor import axial_noise_sigma, ray_directions
 from ..config import resolve_sensor
 
@@ -62,8 +65,11 @@ class OctreeMapper(LeafSystem):
     """Probabilistic occupancy over W_box (+ margin) with OctoMap's sensor model (log-odds
     hit/miss with clamping; free < 0.45 <= unknown <= 0.55 < occupied). When the controller
     reports that a new plan has finished (idle), it takes one scan: the point cloud (world
-    frame, at the believed camera pose), drops invalid returns, and integrates it by ray
-    casting from the sensor origin; returns inside W_box above the table are object points.
+    frame, at the believed camera pose), drops invalid returns, registers it against the
+    model accumulated from earlier scans (mission.relocalization = icp: planar MAP ICP with
+    the executed plan's motion-model prior, `registration.register_scan`), and integrates it
+    at the corrected pose by ray casting from the sensor origin; returns inside W_box above
+    the table are object points. The correction is published for the planner's belief.
 
     Input ports:
       - point_cloud (abstract PointCloud): the depth camera's cloud in the world frame.
@@ -71,10 +77,16 @@ class OctreeMapper(LeafSystem):
       - controller_status (3): [plan_id, steps done, idle].
       - depth_image (abstract ImageDepth32F): the same scan's depth image; its no-return
         pixels clear free space up to the maximum range.
+      - controls (abstract ControlSequence): the plan just executed (its states and controls
+        give the registration's prior).
     Output ports:
       - map (abstract OccupancyMap): the current map (immutable snapshot).
-      - scan_report (abstract ScanReport): statistics and timing of the last scan.
-    State: abstract map and report; discrete [last plan scanned].
+      - scan_report (abstract ScanReport): statistics and timing of the last scan, with the
+        registration result.
+      - pose_correction (4): [scan index, dx, dy, dyaw] of the last scan (identity when the
+        registration was rejected or is off).
+    State: abstract map, registration model and report; discrete [last plan scanned,
+    correction (4)].
     """
 
     def __init__(self, sc: Scenario, dt: float):
@@ -88,11 +100,17 @@ class OctreeMapper(LeafSystem):
         self._depth = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
         self._dirs = ray_directions(sc.sensor, 1)[0]
         self._z_far = resolve_sensor(sc.sensor).z_far
+        self._tau = self.DeclareAbstractInputPort(
+            "controls", AbstractValue.Make(ControlSequence.empty(np.array(sc.robot.start, float))))
         self._map = self.DeclareAbstractState(AbstractValue.Make(empty))
+        self._model = self.DeclareAbstractState(AbstractValue.Make(RegistrationModel()))
         self._rep = self.DeclareAbstractState(AbstractValue.Make(ScanReport()))
         self._last = self.DeclareDiscreteState(np.array([-1.0]))
+        self._corr = self.DeclareDiscreteState(np.zeros(4))
+        self.reg_cfg = RegistrationConfig()
         self.DeclareStateOutputPort("map", self._map)
         self.DeclareStateOutputPort("scan_report", self._rep)
+        self.DeclareStateOutputPort("pose_correction", self._corr)
         self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
 
     def _update(self, context, state):
@@ -108,11 +126,31 @@ class OctreeMapper(LeafSystem):
         pts = clean_scan(cloud.xyzs())
         pts = add_depth_noise(pts, X_WC, self.sc, omap.scan_count + 1)
         free_rays = no_return_rays(self._depth.Eval(context).data, X_WC, self._dirs, self._z_far)
+        model: RegistrationModel = context.get_abstract_state(self._model).get_value()
+        k = omap.scan_count + 1
+        t1 = time.perf_counter()
+        icp = None
+        if self.sc.mission.relocalization == "icp" and len(model.points):
+            tau: ControlSequence = self._tau.Eval(context)
+            prior = motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
+                                 np.random.default_rng([self.sc.seed, 13, k]))
+            icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg)
+            if icp.applied:
+                c = icp.correction
+                pts, free_rays, X_WC = c.apply_points(pts), c.apply_points(free_rays), c.apply_pose(X_WC)
+        t_register = time.perf_counter() - t1
         t1 = time.perf_counter()
         new, stats = omap.integrate(X_WC[:3, 3], pts, self.sc.mapper.table_clearance, free_rays)
         t_update = time.perf_counter() - t1
+        corr = icp.correction if (icp is not None and icp.applied) else Correction()
         state.get_mutable_abstract_state(self._map).set_value(new)
+        state.get_mutable_abstract_state(self._model).set_value(
+            model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg))
         state.get_mutable_abstract_state(self._rep).set_value(ScanReport(
             new.scan_count, plan_id=int(status[0]), t_sim=context.get_time(),
-            render_s=t_render, update_s=t_update, sensor_origin=X_WC[:3, 3].tolist(), **stats))
+            render_s=t_render, update_s=t_update, register_s=t_register,
+            icp=icp.to_json() if icp is not None else None,
+            sensor_origin=X_WC[:3, 3].tolist(), **stats))
         state.get_mutable_discrete_state().get_mutable_vector(self._last).SetFromVector([status[0]])
+        state.get_mutable_discrete_state().get_mutable_vector(self._corr).SetFromVector(
+            [new.scan_count, corr.dx, corr.dy, corr.dyaw])

@@ -1,0 +1,266 @@
+"""Scan registration and re-localisation (seed 000 §1, seed 003 Algorithm 1).
+
+Each new scan arrives in the world frame at the *believed* camera pose. Open3D's
+point-to-plane ICP registers it against the model accumulated from the earlier (corrected)
+scans; the transform T maps believed-frame points onto the model. Base noise moves the
+robot in the plane (x, y, theta; the arm is exact in Table 4), so T is projected onto a
+rotation about z plus a planar translation — a *correction* (dx, dy, dyaw) — that is applied
+to the scan (the map integrates it at the corrected pose) and to the believed robot state.
+
+The model keeps the returns of a registration region (the table top and what stands on it:
+W_box grown in x, y, from just below the table top up to the top of W_box), voxel-
+downsampled, so that it stays a few ten thousand points however many scans are merged.
+"""
+
+from __future__ import annotations
+
+import dataclasses as dc
+
+import numpy as np
+
+from .config import Scenario
+
+
+@dc.dataclass
+class RegistrationConfig:
+    region_margin_xy: float = 0.5  #: m around W_box in x and y
+    region_below_table: float = 0.08  #: m below the table top (its edges and legs' tops)
+    model_voxel: float = 0.01  #: downsampling of the accumulated model (m)
+    #: coarse-to-fine ICP: (downsampling voxel, max correspondence distance) per stage (m)
+    stages: tuple = ((0.03, 0.15), (0.02, 0.06), (0.01, 0.02))
+    max_iterations: int = 30
+    point_sigma: float = 0.005  #: m, std of a point-to-plane residual
+    min_fitness: float = 0.3  #: share of the scan with a model point within the last distance
+    max_rmse: float = 0.01  #: m, inlier point-to-plane RMSE of the last stage
+
+
+@dc.dataclass(frozen=True)
+class Correction:
+    """Planar rigid correction: p' = Rz(dyaw) p + (dx, dy, 0)."""
+    dx: float = 0.0
+    dy: float = 0.0
+    dyaw: float = 0.0
+
+    def matrix(self) -> np.ndarray:
+        c, s = np.cos(self.dyaw), np.sin(self.dyaw)
+        T = np.eye(4)
+        T[:2, :2] = [[c, -s], [s, c]]
+        T[0, 3], T[1, 3] = self.dx, self.dy
+        return T
+
+    def apply_points(self, P: np.ndarray) -> np.ndarray:
+        T = self.matrix()
+        return np.asarray(P, float) @ T[:3, :3].T + T[:3, 3]
+
+    def apply_pose(self, X: np.ndarray) -> np.ndarray:
+        return self.matrix() @ np.asarray(X, float)
+
+    def apply_state(self, q: np.ndarray) -> np.ndarray:
+        """The robot state whose base pose is T times the base pose of q (arm unchanged)."""
+        q = np.array(q, float)
+        c, s = np.cos(self.dyaw), np.sin(self.dyaw)
+        x, y = q[0], q[1]
+        q[0] = c * x - s * y + self.dx
+        q[1] = s * x + c * y + self.dy
+        q[2] = float(np.arctan2(np.sin(q[2] + self.dyaw), np.cos(q[2] + self.dyaw)))
+        return q
+
+    def compose(self, other: "Correction") -> "Correction":
+        """self after other."""
+        T = self.matrix() @ other.matrix()
+        return Correction(float(T[0, 3]), float(T[1, 3]), float(np.arctan2(T[1, 0], T[0, 0])))
+
+    def to_json(self) -> list[float]:
+        return [round(self.dx, 6), round(self.dy, 6), round(self.dyaw, 6)]
+
+
+def planar_projection(T: np.ndarray) -> Correction:
+    """The rotation about z (yaw of T's x axis in the plane) and the planar translation."""
+    yaw = float(np.arctan2(T[1, 0] - T[0, 1], T[0, 0] + T[1, 1]))
+    return Correction(float(T[0, 3]), float(T[1, 3]), yaw)
+
+
+def correction_between(true_state_pose: np.ndarray, believed_pose: np.ndarray) -> Correction:
+    """The correction that maps the believed base/camera pose onto the true one (for tests
+    and logging): T = X_true X_believed^-1, projected to the plane."""
+    return planar_projection(np.asarray(true_state_pose) @ np.linalg.inv(np.asarray(believed_pose)))
+
+
+def state_error(q_true: np.ndarray, q_est: np.ndarray) -> tuple[float, float]:
+    """(planar position error in m, absolute heading error in rad) of a state estimate."""
+    d = np.asarray(q_true, float) - np.asarray(q_est, float)
+    return float(np.hypot(d[0], d[1])), float(abs(np.arctan2(np.sin(d[2]), np.cos(d[2]))))
+
+
+def region_mask(sc: Scenario, P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    s = sc.scene
+    lo = np.array([s.bbox_min[0] - cfg.region_margin_xy, s.bbox_min[1] - cfg.region_margin_xy,
+                   s.table_height - cfg.region_below_table])
+    hi = np.array([s.bbox_max[0] + cfg.region_margin_xy, s.bbox_max[1] + cfg.region_margin_xy, s.bbox_max[2]])
+    return np.all((P >= lo) & (P <= hi), axis=1)
+
+
+class RegistrationModel:
+    """Immutable accumulated model (N, 3) float32 of the registration region."""
+
+    __slots__ = ("points",)
+
+    def __init__(self, points: np.ndarray | None = None):
+        pts = np.zeros((0, 3), np.float32) if points is None else np.asarray(points, np.float32)
+        pts.flags.writeable = False
+        self.points = pts
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def merged(self, P: np.ndarray, cfg: RegistrationConfig) -> "RegistrationModel":
+        allp = np.concatenate([self.points, np.asarray(P, np.float32)])
+        return RegistrationModel(voxel_downsample(allp, cfg.model_voxel))
+
+
+def voxel_downsample(P: np.ndarray, voxel: float) -> np.ndarray:
+    """One point per occupied voxel (the first), deterministic."""
+    if len(P) == 0:
+        return P
+    key = np.floor(P / voxel).astype(np.int64)
+    _, idx = np.unique(key, axis=0, return_index=True)
+    return P[np.sort(idx)]
+
+
+@dc.dataclass
+class IcpResult:
+    correction: Correction
+    fitness: float  #: share of the scan's points with a model point within the last distance
+    rmse: float  #: inlier point-to-plane RMSE (m)
+    applied: bool
+    reason: str = ""
+    model_points: int = 0
+    scan_points: int = 0
+    prior_sigma: tuple = (0.0, 0.0, 0.0)  #: prior std of (dx, dy, dyaw) from the motion model
+
+    def to_json(self) -> dict:
+        return {"correction": self.correction.to_json(), "fitness": round(self.fitness, 4),
+                "rmse": round(self.rmse, 5), "applied": self.applied, "reason": self.reason,
+                "model_points": self.model_points, "scan_points": self.scan_points,
+                "prior_sigma": [round(float(v), 5) for v in self.prior_sigma]}
+
+
+def motion_prior(q_start: np.ndarray, controls: np.ndarray, dt: float, believed_end: np.ndarray,
+                 noise, rng: np.random.Generator, n: int = 256) -> np.ndarray:
+    """Covariance (3, 3) of the correction (dx, dy, dyaw) that maps the believed end state
+    onto the true one, from n rollouts of the noisy motion model over the executed plan (the
+    NoisyVelocityController's model). Zero noise gives a tiny covariance (ICP stays put)."""
+    from .motion import noise_sigmas, rollout, sample_truncated_normal
+    controls = np.asarray(controls, float)
+    if len(controls) == 0:
+        return np.diag([1e-8, 1e-8, 1e-8])
+    eps = sample_truncated_normal(rng, noise_sigmas(noise), noise.beta, (n, len(controls)))
+    finals = rollout(q_start, controls[None] + eps, dt)[:, -1]
+    Xb = base_pose(believed_end)
+    xi = np.array([planar_projection(base_pose(f) @ np.linalg.inv(Xb)).to_json() for f in finals])
+    return np.cov(xi.T) + np.diag([1e-8, 1e-8, 1e-8])
+
+
+def base_pose(q: np.ndarray) -> np.ndarray:
+    """X_WB (4, 4) of the base of state q."""
+    c, s = np.cos(q[2]), np.sin(q[2])
+    X = np.eye(4)
+    X[:2, :2] = [[c, -s], [s, c]]
+    X[0, 3], X[1, 3] = q[0], q[1]
+    return X
+
+
+def _normals(P: np.ndarray, radius: float) -> np.ndarray:
+    import open3d as o3d
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(P, float)))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
+    return np.asarray(pc.normals)
+
+
+def _downsample(P: np.ndarray, voxel: float) -> np.ndarray:
+    import open3d as o3d
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(P, float)))
+    return np.asarray(pc.voxel_down_sample(voxel).points)
+
+
+def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.ndarray,
+                  cfg: RegistrationConfig) -> IcpResult:
+    """Planar maximum-a-posteriori point-to-plane ICP of the scan's region points (believed
+    world frame) against the model: Gauss-Newton over the correction xi = (dx, dy, dyaw)
+    (p' = Rz(dyaw) p + (dx, dy, 0)), minimising sum_i w_i (n_i . (p_i' - q_i))^2 / s^2 +
+    xi^T C^-1 xi, with the model's normals n_i (Open3D), robust (Huber) weights w_i,
+    s = `cfg.point_sigma`, and C the motion model's prior covariance (`motion_prior`).
+    Only the robot's motion space is searched, so tilt never trades against translation
+    (the failure of unconstrained 6-DOF ICP on these partial views), and directions the
+    overlap does not observe (a body of revolution turned about its axis) stay at the
+    odometry estimate instead of sliding. Coarse to fine over `cfg.stages`. Rejected
+    (identity, applied=False) when the model or the scan is too small, or the final fit is
+    poor."""
+    from scipy.spatial import cKDTree
+    n_model, n_scan = len(model.points), len(scan_pts)
+    sig = tuple(np.sqrt(np.diag(prior_cov)))
+    if n_model < 100 or n_scan < 100:
+        return IcpResult(Correction(), 0.0, 0.0, False, "too_few_points", n_model, n_scan, sig)
+    Q = np.asarray(model.points, float)
+    NQ = _normals(Q, 2.5 * cfg.model_voxel)
+    tree = cKDTree(Q)
+    Cinv = np.linalg.inv(prior_cov)
+    s2 = cfg.point_sigma ** 2
+    fine = _downsample(scan_pts, cfg.model_voxel)
+    coarse = {v: (_downsample(scan_pts, v) if v > cfg.model_voxel else fine) for v, _ in cfg.stages}
+
+    def refine(xi):
+        for voxel, dist in cfg.stages:
+            P = coarse[voxel]
+            for _ in range(cfg.max_iterations):
+                X = Correction(*xi).apply_points(P)
+                d, j = tree.query(X, distance_upper_bound=dist)
+                ok = np.isfinite(d)
+                if ok.sum() < 10:
+                    break
+                x, q, n = X[ok], Q[j[ok]], NQ[j[ok]]
+                r = np.sum(n * (x - q), axis=1)
+                rx, ry = x[:, 0] - xi[0], x[:, 1] - xi[1]
+                J = np.stack([n[:, 0], n[:, 1], n[:, 0] * -ry + n[:, 1] * rx], axis=1)
+                w = 1.0 / np.maximum(1.0, np.abs(r) / (2.0 * cfg.point_sigma))
+                A = (J * w[:, None]).T @ J / s2 + Cinv
+                step = -np.linalg.solve(A, (J * w[:, None]).T @ r / s2 + Cinv @ xi)
+                xi = xi + step
+                if np.abs(step).max() < 1e-6:
+                    break
+        return xi
+
+    def evaluate(xi):
+        """(MAP cost, fitness, rmse): the cost caps residuals at the last distance and sums
+        them over the points on structure that plane motion can observe (non-horizontal
+        surfaces, or no model point near); fitness and rmse are over all points."""
+        X = Correction(*xi).apply_points(fine)
+        dmax = cfg.stages[-1][1]
+        d, j = tree.query(X, distance_upper_bound=dmax)
+        ok = np.isfinite(d)
+        jj = np.where(ok, j, 0)
+        r = np.where(ok, np.sum(NQ[jj] * (X - Q[jj]), axis=1), dmax)
+        structure = np.where(ok, np.abs(NQ[jj][:, 2]) < 0.7, True)
+        rs = r[structure]
+        cost = float(np.sum(np.minimum(rs * rs, dmax * dmax)) / s2 + xi @ Cinv @ xi)
+        fit = float(ok.mean())
+        rmse = float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else 0.0
+        return cost, fit, rmse
+
+    # starts: the odometry estimate and +-1.5 sigma along the prior's principal axes
+    evals, evecs = np.linalg.eigh(prior_cov)
+    starts = [np.zeros(3)] + [sgn * 1.5 * np.sqrt(max(ev, 0.0)) * evecs[:, i]
+                              for i, ev in enumerate(evals) if ev > 1e-6 for sgn in (1, -1)]
+    best = None
+    for x0 in starts:
+        xi = refine(np.array(x0, float))
+        cost, fitness, rmse = evaluate(xi)
+        if best is None or cost < best[0]:
+            best = (cost, xi, fitness, rmse)
+    _, xi, fitness, rmse = best
+    corr = Correction(float(xi[0]), float(xi[1]), float(xi[2]))
+    if fitness < cfg.min_fitness:
+        return IcpResult(Correction(), fitness, rmse, False, "low_fitness", n_model, n_scan, sig)
+    if rmse > cfg.max_rmse:
+        return IcpResult(Correction(), fitness, rmse, False, "high_rmse", n_model, n_scan, sig)
+    return IcpResult(corr, fitness, rmse, True, "", n_model, n_scan, sig)

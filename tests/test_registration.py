@@ -1,0 +1,137 @@
+"""Scan registration and re-localisation: the planar MAP ICP (plain functions) and the
+OctreeMapper system correcting its scan and publishing the pose correction."""
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from pydrake.math import RigidTransform
+from pydrake.perception import BaseField, Fields, PointCloud
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.sensors import ImageDepth32F
+
+from nbvs_drake.config import load_scenario
+from nbvs_drake.motion import ControlSequence, noise_sigmas, rollout, sample_truncated_normal, steer
+from nbvs_drake.registration import (Correction, RegistrationConfig, RegistrationModel, motion_prior,
+                                     planar_projection, region_mask, register_scan, state_error)
+from nbvs_drake.systems.octree_mapper import OctreeMapper
+
+
+def test_correction_algebra(kin):
+    q = np.array([-1.2, -0.4, 0.3, 0.1, 1.2, -1.0, -0.5, 0.2])
+    c = Correction(0.05, -0.08, 0.12)
+    qc = c.apply_state(q)
+    # the correction maps the camera pose of q onto the camera pose of the corrected state
+    np.testing.assert_allclose(c.apply_pose(kin.camera_poses(q)[0]), kin.camera_poses(qc)[0], atol=1e-9)
+    T = kin.camera_poses(qc)[0] @ np.linalg.inv(kin.camera_poses(q)[0])
+    p = planar_projection(T)
+    np.testing.assert_allclose([p.dx, p.dy, p.dyaw], [0.05, -0.08, 0.12], atol=1e-9)
+    np.testing.assert_allclose(c.compose(Correction(0.01, 0.0, -0.02)).apply_state(q),
+                               c.apply_state(Correction(0.01, 0.0, -0.02).apply_state(q)), atol=1e-9)
+
+
+def test_motion_prior_matches_the_noise():
+    sc = load_scenario()
+    sc.noise.sigma_v, sc.noise.sigma_w = 0.00165, 0.28
+    q0 = np.array(sc.robot.start)
+    U = np.zeros((50, 7))
+    U[:, 0] = 0.3  # drive 1.5 m straight
+    qb = rollout(q0, U, 0.1)[-1]
+    C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0), n=2000)
+    # heading: a random walk of 50 steps of sigma_w dt (truncated at 3 sigma)
+    assert np.sqrt(C[2, 2]) == pytest.approx(sc.noise.sigma_w * 0.1 * np.sqrt(50), rel=0.1)
+    sc.noise.sigma_w = sc.noise.sigma_v = 0.0
+    assert np.all(np.sqrt(np.diag(motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0)))) < 1e-3)
+
+
+def _noisy_second_scan(sc, r, draw: int, angle: float):
+    """Scan 1 from the start state; a plan to a view at `angle` around the table executed
+    with the Table 4 noise (draw `draw`); scan 2 rendered at the true end state but
+    expressed at the believed (dead-reckoned) one."""
+    q0 = np.array(sc.robot.start)
+    qg = q0.copy()
+    qg[:3] = [-1.45 * np.cos(angle), -1.45 * np.sin(angle), angle]
+    U = steer(q0, qg, sc.robot)[0][1]
+    eps = sample_truncated_normal(np.random.default_rng(draw), noise_sigmas(sc.noise), 3.0, (len(U),))
+    qt, states = rollout(q0, U + eps, 0.1)[-1], rollout(q0, U, 0.1)
+    qb = states[-1]
+    Xt, Xb = r.kin.camera_poses(qt)[0], r.kin.camera_poses(qb)[0]
+    M = Xb @ np.linalg.inv(Xt)
+    P2 = r.scan(qt).points
+    return q0, U, states, qt, qb, P2 @ M[:3, :3].T + M[:3, 3], Xb
+
+
+@pytest.fixture(scope="module")
+def renderer(tmp_path_factory):
+    from nbvs_drake.scanning import ScanRenderer
+    sc = load_scenario()
+    sc.noise.sigma_v, sc.noise.sigma_w = 0.00165, 0.28
+    r = ScanRenderer(sc, tmp_path_factory.mktemp("scan"))
+    return sc, r, r.scan(np.array(sc.robot.start))
+
+
+def test_icp_reduces_the_heading_error_of_noisy_scans(renderer):
+    """Over twelve noisy second scans (views 0.3-0.85 rad around the table, 1.45 m out) the
+    registration lowers the mean heading error of the belief and the camera's position
+    error (what the map sees), and does not worsen the base position. Measured: heading
+    0.221 -> 0.173 rad, camera 0.213 -> 0.170 m, base 0.101 -> 0.095 m (the teapot's body
+    of revolution, seen from one earlier view, leaves the base's place along it weakly
+    observed)."""
+    sc, r, s1 = renderer
+    cfg = RegistrationConfig()
+    model = RegistrationModel().merged(s1.points[region_mask(sc, s1.points, cfg)], cfg)
+    before, after = [], []
+    cam = lambda q: r.kin.camera_poses(q)[0][:3, 3]  # noqa: E731
+    for draw in range(12):
+        q0, U, states, qt, qb, P2, _ = _noisy_second_scan(sc, r, draw, 0.3 + 0.05 * draw)
+        C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(draw))
+        res = register_scan(P2[region_mask(sc, P2, cfg)], model, C, cfg)
+        qc = res.correction.apply_state(qb)
+        before.append([*state_error(qt, qb), np.linalg.norm(cam(qt) - cam(qb))])
+        after.append([*state_error(qt, qc), np.linalg.norm(cam(qt) - cam(qc))])
+    before, after = np.mean(before, axis=0), np.mean(after, axis=0)
+    print("mean errors [base m, heading rad, camera m] before", before, "after", after)
+    assert after[1] < 0.85 * before[1], (before, after)
+    assert after[2] < before[2] and after[0] < before[0] + 0.01, (before, after)
+
+
+def test_mapper_registers_the_scan_and_publishes_the_correction(renderer):
+    sc, r, s1 = renderer
+    for draw in range(20):  # a noisy draw after which the object is still in view
+        q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, draw, 0.4)
+        above = P2[:, 2] > sc.scene.table_height + 0.02
+        if np.count_nonzero(above & region_mask(sc, P2, RegistrationConfig())) > 2000:
+            break
+    mapper = OctreeMapper(sc, 0.1)
+    sim = Simulator(mapper)
+    ctx = sim.get_mutable_context()
+
+    def cloud(P):
+        c = PointCloud(len(P), Fields(BaseField.kXYZs))
+        c.mutable_xyzs()[:] = P.T
+        return AbstractValue.Make(c)
+
+    pc = mapper.GetInputPort("point_cloud").FixValue(ctx, cloud(s1.points))
+    pose = mapper.GetInputPort("camera_pose").FixValue(ctx, AbstractValue.Make(RigidTransform(r.kin.camera_poses(q0)[0])))
+    mapper.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
+    tau = mapper.GetInputPort("controls").FixValue(ctx, AbstractValue.Make(ControlSequence.empty(q0)))
+    status = mapper.GetInputPort("controller_status").FixValue(ctx, [0, 0, 1])
+    sim.AdvanceTo(0.05)
+    assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 1
+    assert list(mapper.GetOutputPort("pose_correction").Eval(ctx)) == [1, 0, 0, 0]
+    pc.GetMutableData().set_value(cloud(P2).get_value())
+    pose.GetMutableData().set_value(RigidTransform(Xb))
+    tau.GetMutableData().set_value(ControlSequence(1, 0.1, U, states))
+    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
+    sim.AdvanceTo(0.15)
+    corr = mapper.GetOutputPort("pose_correction").Eval(ctx)
+    assert corr[0] == 2
+    rep = mapper.GetOutputPort("scan_report").Eval(ctx).info
+    assert rep["icp"]["applied"] and rep["register_s"] > 0
+    # the mapper's result is the registration's (same prior draw: seed, 13, scan 2)
+    cfg = RegistrationConfig()
+    C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng([sc.seed, 13, 2]))
+    res = register_scan(P2[region_mask(sc, P2, cfg)],
+                        RegistrationModel().merged(s1.points[region_mask(sc, s1.points, cfg)], cfg), C, cfg)
+    np.testing.assert_allclose(corr[1:], [res.correction.dx, res.correction.dy, res.correction.dyaw], atol=1e-9)
+    # the scan went into the map at the corrected camera pose
+    np.testing.assert_allclose(rep["sensor_origin"], Correction(*corr[1:]).apply_pose(Xb)[:3, 3], atol=1e-9)

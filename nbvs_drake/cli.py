@@ -14,7 +14,17 @@ def _cmd_reconstruct(args):
     from .mission import run_mission
     sc = load_scenario(args.scenario, seed=args.seed)
     out = Path(args.out or f"results/{sc.name}")
-    run_mission(sc, out, verbose=not args.quiet)
+    meshcat = None
+    if args.meshcat:
+        from pydrake.geometry import Meshcat, MeshcatParams
+        meshcat = Meshcat(MeshcatParams(host="localhost", port=args.meshcat_port))
+        print(f"nbvs: live view (Meshcat) at {meshcat.web_url()}", flush=True)
+    run_mission(sc, out, verbose=not args.quiet, meshcat=meshcat)
+    if meshcat is not None and sys.stdin.isatty():
+        try:
+            input(f"nbvs: the live view stays at {meshcat.web_url()}; press Enter to close it ")
+        except EOFError:
+            pass
 
 
 def _cmd_diagram(args):
@@ -37,6 +47,10 @@ def main(argv=None) -> int:
     r.add_argument("--out", default=None, help="output folder (default: results/<scenario name>)")
     r.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     r.add_argument("--quiet", action="store_true")
+    r.add_argument("--meshcat", action="store_true",
+                   help="show the run live in Meshcat (robot, map voxels, candidates, plan); prints the URL")
+    r.add_argument("--meshcat-port", type=int, default=None,
+                   help="Meshcat's port (default: the first free one from 7000)")
     r.set_defaults(func=_cmd_reconstruct)
     d = sub.add_parser("diagram", help="write the Graphviz wiring of a scenario's diagram")
     d.add_argument("--scenario", default=None)

@@ -65,9 +65,10 @@ def add_robot_and_scene(builder, sc: Scenario, object_obj: str | None):
     return scene_graph, plant, to_pose
 
 
-def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiagram:
+def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) -> MissionDiagram:
     """`work_dir` receives the object's OBJ (rendered by VTK); `log` is the IterationLog the
-    MissionRecorder writes to (None: no recorder, e.g. for drawing the wiring)."""
+    MissionRecorder writes to (None: no recorder, e.g. for drawing the wiring); `meshcat`: a
+    pydrake Meshcat for the live view (MeshcatVisualizer + MeshcatMapView), None: none."""
     from pydrake.systems.framework import DiagramBuilder
 
     from .systems.collision_monitor import CollisionMonitor
@@ -130,6 +131,10 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None) -> MissionDiag
         builder.Connect(ctrl.GetOutputPort("status"), rec.GetInputPort("controller_status"))
         builder.Connect(monitor.GetOutputPort("counts"), rec.GetInputPort("collisions"))
         systems["recorder"] = rec
+    if meshcat is not None:  # live view (nbvs reconstruct --meshcat)
+        from .systems.meshcat_map_view import add_meshcat_views
+        systems["meshcat_visualizer"], systems["meshcat_map_view"] = add_meshcat_views(
+            builder, meshcat, scene_graph, mapper, planner, kin, OccupancyMap.for_scenario(sc), dt)
     diagram = builder.Build()
     diagram.set_name(f"nbvs_mission_{sc.name}")
     return MissionDiagram(diagram, systems, kin, mesh, gt, plant)

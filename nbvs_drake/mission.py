@@ -52,7 +52,8 @@ def pose_errors(records: list[dict]) -> dict:
             "icp_applied": int(sum(1 for r in rows if (r["scan"].get("icp") or {}).get("applied")))}
 
 
-def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict:
+def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat=None) -> dict:
+    """`meshcat`: a pydrake Meshcat that shows the run live (robot, map, plans), or None."""
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import EventStatus
 
@@ -60,7 +61,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     log = IterationLog(out / "iterations.jsonl", echo=_print_iteration if verbose else None)
-    md = build_mission_diagram(sc, out / "scene", log)
+    md = build_mission_diagram(sc, out / "scene", log, meshcat=meshcat)
     if verbose:
         print(f"nbvs: scenario {sc.name!r}, seed {sc.seed}, object {sc.scene.object.kind}, "
               f"planner {sc.planner.strategy}, writing to {out}", flush=True)
@@ -141,6 +142,14 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True) -> dict
         },
         "wall_s": time.perf_counter() - t_start,
     }
+    _write_json(out / "summary.json", summary)
+    # paths.png and replay.html after summary.json: a failure there cannot lose the results
+    from .replay import write_visual_outputs
+    vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
+                               verbose=verbose)
+    summary["times_s"]["visual_outputs"] = vis["seconds"]
+    if vis["errors"]:
+        summary["visual_output_errors"] = vis["errors"]
     _write_json(out / "summary.json", summary)
     if verbose:
         print(f"done: coverage {summary['coverage']:.3f} after {summary['scans']} scans, "

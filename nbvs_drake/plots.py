@@ -32,3 +32,101 @@ def plot_coverage(records: list[dict], path: Path, title: str = ""):
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def _xy(states):
+    """(N, 2) base positions of a list of 8-vector states, or None when there are none."""
+    import numpy as np
+    if not states:
+        return None
+    a = np.asarray(states, float).reshape(-1, 8)
+    return a[:, :2]
+
+
+def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_error: float = 0.002):
+    """Top view (x, y) of a run, after seed 000 Fig. 17: the table and W_box, per iteration
+    the planned base path (dashed; the plan made after scan k) and the executed true path
+    (solid; the motion that ended at scan k + 1) in one colour, the true base pose at each
+    scan (numbered, with its heading), and the believed (dead-reckoned, x) and corrected
+    (after re-localisation, +) positions where the records have them and they lie more than
+    `min_error` (m) from the true one. Records without path fields still give the numbered
+    scan positions."""
+    import numpy as np
+    from matplotlib.patches import Rectangle
+
+    fig, ax = plt.subplots(figsize=(6.4, 6.0), dpi=110)
+    tx, ty = scene_cfg.table_size
+    ax.add_patch(Rectangle((-tx / 2, -ty / 2), tx, ty, facecolor=(0.82, 0.7, 0.55), edgecolor=(0.55, 0.4, 0.25),
+                           lw=1, zorder=0, label="table"))
+    lo, hi = scene_cfg.bbox_min, scene_cfg.bbox_max
+    ax.add_patch(Rectangle((lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, edgecolor="0.3", lw=1,
+                           ls=":", zorder=1, label="$W_{box}$"))
+    cmap = plt.get_cmap("viridis")
+    n = max(len(records), 2)
+    by_iter = {r.get("iteration", i + 1): r for i, r in enumerate(records)}
+    pts = []  # everything drawn, for the limits
+    labelled = set()
+
+    def once(key, text):
+        if key in labelled:
+            return None
+        labelled.add(key)
+        return text
+
+    for i, rec in enumerate(records):
+        k = rec.get("iteration", i + 1)
+        col = cmap(i / (n - 1) * 0.9)
+        plan = rec.get("plan") or {}
+        planned = _xy(plan.get("path")) if plan.get("status") == "ok" else None
+        if planned is not None:
+            ax.plot(planned[:, 0], planned[:, 1], "--", color=col, lw=1.3, zorder=4,
+                    label=once("plan", "planned path"))
+            pts.append(planned)
+        nxt = by_iter.get(k + 1)
+        executed = _xy(nxt.get("executed_path")) if nxt else None
+        if executed is not None:
+            ax.plot(executed[:, 0], executed[:, 1], "-", color=col, lw=3.0, alpha=0.5, zorder=3,
+                    label=once("exec", "executed path (true)"))
+            pts.append(executed)
+        true = rec.get("true_state")
+        if true:
+            x, y, th = true[0], true[1], true[2]
+            ax.plot(x, y, "o", ms=13, mfc="white", mec=col, mew=2, zorder=5,
+                    label=once("scan", "true pose at scan k"))
+            ax.annotate("", xy=(x + 0.16 * np.cos(th), y + 0.16 * np.sin(th)), xytext=(x, y), zorder=5,
+                        arrowprops={"arrowstyle": "->", "color": col, "lw": 1.2})
+            ax.text(x, y, str(k), ha="center", va="center", fontsize=7, zorder=8)
+            pts.append(np.array([[x, y]]))
+        bel = rec.get("believed_state")
+        if bel and true and np.hypot(bel[0] - true[0], bel[1] - true[1]) > min_error:
+            ax.plot(bel[0], bel[1], "x", color="crimson", ms=7, mew=1.5, zorder=6,
+                    label=once("bel", "believed (dead reckoning)"))
+            ax.plot([true[0], bel[0]], [true[1], bel[1]], "-", color="crimson", lw=0.7, zorder=5)
+            pts.append(np.array([bel[:2]]))
+        cor = rec.get("corrected_state")
+        if cor and true and np.hypot(cor[0] - true[0], cor[1] - true[1]) > min_error:
+            ax.plot(cor[0], cor[1], "+", color="darkorange", ms=9, mew=1.8, zorder=6,
+                    label=once("cor", "corrected (ICP)"))
+            pts.append(np.array([cor[:2]]))
+    allp = np.concatenate(pts + [np.array([[-tx / 2, -ty / 2], [tx / 2, ty / 2]])])
+    pad = 0.3
+    x0, x1 = allp[:, 0].min() - pad, allp[:, 0].max() + pad
+    y0, y1 = allp[:, 1].min() - pad, allp[:, 1].max() + pad
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal")
+    # the figure follows the data's aspect (plus room for the legend below)
+    fig.set_size_inches(6.4, float(np.clip(5.0 * (y1 - y0) / (x1 - x0), 2.5, 8.0)) + 1.6)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(alpha=0.3)
+    leg = ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=3, fontsize=7, framealpha=0.9)
+    for h, text in zip(leg.legend_handles, leg.get_texts()):  # iteration colours: neutral in the legend
+        if text.get_text() in ("planned path", "executed path (true)"):
+            h.set_color("0.35")
+        elif text.get_text() == "true pose at scan k":
+            h.set_markeredgecolor("0.35")
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -2,10 +2,14 @@
 # Creates .venv and installs nbvs_drake with its test extras. Installs the Debian packages the
 # stack needs (open3d: libusb-1.0-0; VTK's headless rendering: EGL/Mesa; diagram pictures:
 # graphviz) when they are missing and we are root; otherwise says which ones to install.
+# Optional: chromium (headless screenshots of replay.html in tests/test_replay.py and
+# scripts/screenshot_replay.py; the test is skipped without it): installed the same way, but
+# a failure there does not stop the set-up.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON="${PYTHON:-python3}"
 DEB_PKGS="libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri graphviz"
+DEB_PKGS_OPTIONAL="chromium"
 
 missing=""
 if command -v dpkg-query >/dev/null 2>&1; then
@@ -21,6 +25,22 @@ if [ -n "$missing" ]; then
     apt-get install -y -qq --no-install-recommends $missing >/dev/null
   else
     echo "setup: please install these Debian packages (as root):$missing" >&2
+  fi
+fi
+optional=""
+if command -v dpkg-query >/dev/null 2>&1; then
+  for p in $DEB_PKGS_OPTIONAL; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || optional="$optional $p"
+  done
+fi
+if [ -n "$optional" ]; then
+  if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    echo "setup: installing optional Debian packages:$optional"
+    export DEBIAN_FRONTEND=noninteractive
+    { [ -n "$missing" ] || apt-get update -qq; } && apt-get install -y -qq --no-install-recommends $optional >/dev/null \
+      || echo "setup: could not install$optional (optional: replay.html screenshots)" >&2
+  else
+    echo "setup: optional Debian packages (replay.html screenshots):$optional" >&2
   fi
 fi
 

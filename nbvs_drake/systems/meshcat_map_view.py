@@ -1,0 +1,68 @@
+"""MeshcatMapView: the live view of `nbvs reconstruct --meshcat` draws the map and the plans."""
+
+from __future__ import annotations
+
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import EventStatus, LeafSystem
+
+from .. import replay
+from ..mapping.occupancy import OccupancyMap
+
+
+class MeshcatMapView(LeafSystem):
+    """A sink that publishes to Meshcat, checking every `period` (simulated) seconds:
+    when a new scan has been integrated, the map's unknown voxels of W_box (yellow, those on
+    the surface of the unknown region) and occupied voxels (blue) replace the previous ones
+    at /nbvs/map; when a new plan report arrives, its candidate views, chosen view and
+    planned path replace the previous ones at /nbvs/plan (drawing helpers of `replay`).
+
+    Input ports:
+      - map (abstract OccupancyMap)
+      - plan_report (abstract dict): the NBVSPlanner's report ("scan", "status", "q_goal",
+        and where present "path" and "candidates")
+    Output ports: none (draws in Meshcat).
+
+    What was last drawn (scan count, planned-for scan) is kept in the system, as Drake's
+    MeshcatVisualizer does: a publish event cannot write the context, and the drawing is a
+    side effect anyway.
+    """
+
+    def __init__(self, meshcat, kin, dummy_map: OccupancyMap, period: float):
+        super().__init__()
+        self.meshcat = meshcat
+        self.kin = kin
+        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(dummy_map))
+        self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make({}))
+        self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
+        self._drawn_scan = -1
+        self._drawn_plan = -1
+        replay.set_default_view(meshcat)
+        replay.set_wbox(meshcat, f"{replay.ROOT}/wbox", dummy_map.wbox_min, dummy_map.wbox_max)
+
+    def _publish(self, context):
+        omap: OccupancyMap = self._map.Eval(context)
+        if omap.scan_count != self._drawn_scan:
+            replay.set_map_objects(self.meshcat, f"{replay.ROOT}/map", omap)
+            self._drawn_scan = omap.scan_count
+        plan = self._plan.Eval(context)
+        k = int(plan.get("scan", 0))
+        if k != self._drawn_plan:
+            self.meshcat.Delete(f"{replay.ROOT}/plan")
+            if plan.get("status") == "ok":
+                replay.set_plan_objects(self.meshcat, f"{replay.ROOT}/plan", plan, self.kin)
+            self._drawn_plan = k
+        return EventStatus.Succeeded()
+
+
+def add_meshcat_views(builder, meshcat, scene_graph, mapper, planner, kin, dummy_map: OccupancyMap,
+                      period: float):
+    """Adds to a mission diagram a MeshcatVisualizer of the scene (illustration geometry:
+    robot, table, object; published every `period`) and a MeshcatMapView fed by the mapper's
+    map and the planner's report. Returns (visualizer, map_view)."""
+    from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Role
+    vis = MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, MeshcatVisualizerParams(
+        role=Role.kIllustration, prefix="robot", publish_period=period))
+    view = builder.AddNamedSystem("meshcat_map_view", MeshcatMapView(meshcat, kin, dummy_map, period))
+    builder.Connect(mapper.GetOutputPort("map"), view.GetInputPort("map"))
+    builder.Connect(planner.GetOutputPort("report"), view.GetInputPort("plan_report"))
+    return vis, view

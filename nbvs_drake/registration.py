@@ -31,6 +31,12 @@ class RegistrationConfig:
     max_iterations: int = 30
     point_sigma: float = 0.005  #: m, std of a point-to-plane residual
     min_fitness: float = 0.3  #: share of the scan with a model point within the last distance
+    #: fewer region points than this (the object mostly out of view): keep the odometry
+    min_scan_points: int = 3000
+    #: two starts converging this far apart (m, rad) with costs within this fraction: ambiguous
+    ambiguity_m: float = 0.05
+    ambiguity_rad: float = 0.05
+    ambiguity_cost: float = 0.05
     max_rmse: float = 0.01  #: m, inlier point-to-plane RMSE of the last stage
 
 
@@ -184,7 +190,7 @@ def _downsample(P: np.ndarray, voxel: float) -> np.ndarray:
 
 
 def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.ndarray,
-                  cfg: RegistrationConfig) -> IcpResult:
+                  cfg: RegistrationConfig, free_at=None) -> IcpResult:
     """Planar maximum-a-posteriori point-to-plane ICP of the scan's region points (believed
     world frame) against the model: Gauss-Newton over the correction xi = (dx, dy, dyaw)
     (p' = Rz(dyaw) p + (dx, dy, 0)), minimising sum_i w_i (n_i . (p_i' - q_i))^2 / s^2 +
@@ -193,13 +199,18 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
     Only the robot's motion space is searched, so tilt never trades against translation
     (the failure of unconstrained 6-DOF ICP on these partial views), and directions the
     overlap does not observe (a body of revolution turned about its axis) stay at the
-    odometry estimate instead of sliding. Coarse to fine over `cfg.stages`. Rejected
+    odometry estimate instead of sliding. Coarse to fine over `cfg.stages`, from several
+    starts along the prior's principal axes; the start whose result fits best wins, where
+    the fit also charges every scan point that lands in space the map has seen free
+    (`free_at(points) -> bool`, e.g. `OccupancyMap.free_at`): partial overlaps let a wrong
+    pose match as many points as the right one, but not without putting surface into known
+    free space. Rejected
     (identity, applied=False) when the model or the scan is too small, or the final fit is
     poor."""
     from scipy.spatial import cKDTree
     n_model, n_scan = len(model.points), len(scan_pts)
     sig = tuple(np.sqrt(np.diag(prior_cov)))
-    if n_model < 100 or n_scan < 100:
+    if n_model < 100 or n_scan < cfg.min_scan_points:
         return IcpResult(Correction(), 0.0, 0.0, False, "too_few_points", n_model, n_scan, sig)
     Q = np.asarray(model.points, float)
     NQ = _normals(Q, 2.5 * cfg.model_voxel)
@@ -243,6 +254,8 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
         structure = np.where(ok, np.abs(NQ[jj][:, 2]) < 0.7, True)
         rs = r[structure]
         cost = float(np.sum(np.minimum(rs * rs, dmax * dmax)) / s2 + xi @ Cinv @ xi)
+        if free_at is not None:  # surface in known free space costs like an unmatched point
+            cost += float(np.count_nonzero(free_at(X))) * dmax * dmax / s2
         fit = float(ok.mean())
         rmse = float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else 0.0
         return cost, fit, rmse
@@ -251,13 +264,18 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
     evals, evecs = np.linalg.eigh(prior_cov)
     starts = [np.zeros(3)] + [sgn * 1.5 * np.sqrt(max(ev, 0.0)) * evecs[:, i]
                               for i, ev in enumerate(evals) if ev > 1e-6 for sgn in (1, -1)]
-    best = None
+    results = []
     for x0 in starts:
         xi = refine(np.array(x0, float))
-        cost, fitness, rmse = evaluate(xi)
-        if best is None or cost < best[0]:
-            best = (cost, xi, fitness, rmse)
-    _, xi, fitness, rmse = best
+        results.append((*evaluate(xi), xi))
+    results.sort(key=lambda r: r[0])
+    best_cost, fitness, rmse, xi = results[0]
+    # ambiguity: another start converged elsewhere to (nearly) as good a fit -> the overlap
+    # does not determine the pose (a body of revolution, a small patch): keep the odometry
+    for cost, _, _, other in results[1:]:
+        far = np.hypot(*(other[:2] - xi[:2])) > cfg.ambiguity_m or abs(other[2] - xi[2]) > cfg.ambiguity_rad
+        if far and cost <= best_cost * (1 + cfg.ambiguity_cost):
+            return IcpResult(Correction(), fitness, rmse, False, "ambiguous", n_model, n_scan, sig)
     corr = Correction(float(xi[0]), float(xi[1]), float(xi[2]))
     if fitness < cfg.min_fitness:
         return IcpResult(Correction(), fitness, rmse, False, "low_fitness", n_model, n_scan, sig)

@@ -41,11 +41,12 @@ def environment_boxes(sc: Scenario) -> list[Box]:
 
 
 def chair_boxes(sc: Scenario) -> list[Box]:
-    """Nine chairs on a ring around the table (seed 000 Fig. 13): seat + backrest each."""
+    """Nine chairs on a ring around the table (seed 000 Fig. 13): seat + backrest each, in ten
+    slots 36 deg apart with the slot on the -x side (where the robot starts) left open."""
     out = []
     r = 1.25
-    for k in range(9):
-        a = 2 * math.pi * k / 9 + math.pi / 9
+    for k in (0, 1, 2, 3, 4, 6, 7, 8, 9):
+        a = 2 * math.pi * k / 10
         cx, cy = r * math.cos(a), r * math.sin(a)
         yaw = a + math.pi  # facing the table
         out.append(Box(f"chair{k}_seat", (cx, cy, 0.225), (0.42, 0.42, 0.45), yaw, (0.2, 0.3, 0.6, 1)))

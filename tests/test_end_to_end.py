@@ -89,3 +89,32 @@ def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric,
     if obstacles == "voxels":
         assert 0 < first["stages"]["obstacle_boxes"] <= 300
     assert len(recs) == s["scans"]
+
+
+def test_every_scenario_in_diagrams_loads():
+    from nbvs_drake import DIAGRAMS_DIR
+    names = {load_scenario(p).name for p in sorted(DIAGRAMS_DIR.glob("*.yaml"))}
+    assert {"default", "teapot_du", "teapot_du_mu", "teapot_eu_mu", "cluttered_room"} <= names
+
+
+@pytest.mark.parametrize("name", ["teapot_eu_mu", "cluttered_room"])
+def test_noisy_scenarios_run(tmp_path, name):
+    """A small version of each noisy scenario (fewer candidates, rollouts, tree nodes):
+    noisy execution, registration, EU, and (cluttered_room) the chairs and RRT."""
+    from nbvs_drake import DIAGRAMS_DIR
+    sc = load_scenario(DIAGRAMS_DIR / f"{name}.yaml")
+    sc.mission.max_scans = 3
+    sc.planner.n_candidates = 1500
+    sc.planner.eu_samples = 40
+    sc.planner.rrt_max_nodes = min(sc.planner.rrt_max_nodes, 400)
+    sc.scene.gt_points = 5000
+    s = run_mission(sc, tmp_path, verbose=False)
+    assert s["relocalization"] == "icp" and s["scans"] >= 2, s
+    recs = [json.loads(x) for x in (tmp_path / "iterations.jsonl").read_text().splitlines()]
+    second = recs[1]
+    assert second["scan"]["icp"] is not None and len(second["executed_path"]) > 2
+    # the controls were noisy: the true state is not the planned one
+    assert second["true_state"] != recs[0]["plan"]["q_goal"]
+    assert "eu" in recs[0]["plan"]["factors"]
+    for f in ("paths.png", "replay.html", "summary.json"):
+        assert (tmp_path / f).stat().st_size > 0

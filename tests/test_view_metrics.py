@@ -164,3 +164,127 @@ def test_hrt_skips_free_cells_and_accounts_unknown_cells():
     many = K.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, o[None], np.eye(3)[None], d2, np.zeros(50),
                                 np.full(50, 5.0), L_FREE, L_OCC, 1)[0]
     assert many[K.M_FIG] == pytest.approx(2 * 64 * math.log(2))
+
+
+def _block_map(rng, dims=(17, 14, 11)):
+    """Homogeneous 4x4x4 blocks (all free, all unknown with one or several entropies, some with
+    occupied voxels) so that every cell kind of the traversal occurs, grid edges included."""
+    lo = np.empty(dims, np.float32)
+    for ci in range(0, dims[0], 4):
+        for cj in range(0, dims[1], 4):
+            for ck in range(0, dims[2], 4):
+                kind = rng.integers(4)
+                blk = (slice(ci, ci + 4), slice(cj, cj + 4), slice(ck, ck + 4))
+                if kind == 0:
+                    lo[blk] = -1.5
+                elif kind == 1:
+                    lo[blk] = 0.0
+                elif kind == 2:  # unknown with differing entropies
+                    lo[blk] = rng.uniform(-0.15, 0.15, lo[blk].shape)
+                else:
+                    lo[blk] = rng.choice([-1.5, 0.0, 1.2], size=lo[blk].shape, p=[0.6, 0.3, 0.1])
+    return lo
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_kernel_matches_brute_force_on_homogeneous_cells(seed):
+    # all-free cells are jumped over, all-unknown cells collected as bitmasks: still exact
+    rng = np.random.default_rng(100 + seed)
+    lo = _block_map(rng)
+    res, bmin = 0.1, np.array([0.0, 0.0, 0.0])
+    o = np.array([-0.45, 0.37, 0.52]) + rng.uniform(-0.05, 0.05, 3)
+    targets = rng.uniform([0, 0, 0], np.array(lo.shape) * res, size=(40, 3))
+    dirs = targets - o
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_near, t_far = np.full(len(dirs), 0.05), np.full(len(dirs), 3.0)
+    got = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
+    ref = _brute(lo, bmin, res, o, dirs, t_near, t_far)
+    for m, v in ref.items():
+        assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
+
+
+def test_cell_masks_hold_the_classes():
+    rng = np.random.default_rng(3)
+    lo = _block_map(rng, (9, 6, 7))
+    cls = K.classes_grid(lo, L_FREE, L_OCC)
+    H = K.entropy_grid(lo)
+    U, O, hc = K.cell_masks(cls, H)
+    cy, cz = 2, 2
+    for i, j, k in np.ndindex(lo.shape):
+        cf = ((i >> 2) * cy + (j >> 2)) * cz + (k >> 2)
+        b = ((i & 3) * 4 + (j & 3)) * 4 + (k & 3)
+        assert bool((int(U[cf]) >> b) & 1) == (cls[i, j, k] == 1)
+        assert bool((int(O[cf]) >> b) & 1) == (cls[i, j, k] == 2)
+        if cls[i, j, k] == 1 and hc[cf] >= 0:
+            assert hc[cf] == pytest.approx(H[i, j, k])
+
+
+def test_all_free_region_is_skipped_exactly():
+    # a long free corridor, then an occupied voxel with unknown behind it
+    lo = np.full((40, 4, 4), -1.5, np.float32)
+    lo[33] = 1.2
+    lo[34:] = 0.0
+    d = np.array([[1.0, 0.013, -0.007]])
+    d /= np.linalg.norm(d)
+    o = np.array([-0.3, 0.21, 0.19])
+    m = K.evaluate_views(lo, np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 9.0),
+                         L_FREE, L_OCC, 1)[0]
+    assert m[K.M_RAYS] == 1 and m[K.M_OC_RAYS] == 1 and m[K.M_OC_O] == 1 and m[K.M_RSV] == 1
+    assert m[K.M_FIG] == 0 and m[K.M_SIG] == 0 and m[K.M_UN_O] == 0
+    lo[33] = -1.5  # now the ray crosses the unknown end: 6 voxels
+    m = K.evaluate_views(lo, np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 9.0),
+                         L_FREE, L_OCC, 1)[0]
+    assert m[K.M_UN_O] == 1 and m[K.M_N_POSTERIOR] == 5 and m[K.M_FIG] == pytest.approx(6 * math.log(2))
+
+
+def _grid_rays(w, h, f):
+    u, v = np.meshgrid(np.arange(w) + 0.5 - w / 2, np.arange(h) + 0.5 - h / 2)
+    d = np.stack([u.ravel() / f, v.ravel() / f, np.ones(u.size)], axis=1)
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_sparse_rays_cover_the_image_once():
+    d = _grid_rays(10, 7, 20.0)
+    assert K.ray_grid_width(d) == 10
+    assert K.ray_grid_width(np.random.default_rng(0).normal(size=(12, 3)) + [0, 0, 5]) == 0
+    for a in (1, 2):
+        idx, w = K.sparse_rays(len(d), 10, a)
+        assert w.sum() == len(d) and len(np.unique(idx)) == len(idx)
+    idx, w = K.sparse_rays(len(d), 0, 2)
+    assert len(idx) == len(d) and np.all(w == 1)
+
+
+@pytest.mark.parametrize("a", [1, 2, 3])
+def test_hrt_tracing_every_ray_equals_uniform_where_every_cell_is_refined(a):
+    # grid rays with width=0: every ray is traced; on a map where every cell with an unknown
+    # voxel is refined HRT = uniform
+    for seed in range(100):  # a map without all-unknown cells (all-free ones are skipped exactly)
+        lo = _random_map(np.random.default_rng(seed), (16, 12, 8))
+        bits, _, _ = K.coarse_summary(lo, K.entropy_grid(lo), a, L_FREE, L_OCC)
+        if not np.any(bits == K.C_UNKNOWN):
+            break
+    dirs = _grid_rays(24, 18, 19.73)
+    # generic positions: a grid ray through a voxel edge is a tie the two traversals may
+    # break differently
+    pos = np.array([[0.8137, 0.6171, -0.6093], [0.3091, 0.2053, -0.3127]])
+    rot = np.repeat(np.eye(3)[None], 2, 0)
+    tn, tf = np.zeros(len(dirs)), np.full(len(dirs), 3.0)
+    assert not np.any(bits == K.C_UNKNOWN)
+    uni = K.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
+    hrt = K.evaluate_views_hrt(lo, a, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1, width=0)
+    np.testing.assert_allclose(hrt, uni, rtol=1e-9)
+
+
+def test_hrt_block_rays_estimate_the_uniform_metrics():
+    # one traced ray per 4x4 pixel block, weighted: per-ray metrics stay close to uniform
+    rng = np.random.default_rng(5)
+    lo = _block_map(rng, (24, 24, 16))
+    dirs = _grid_rays(48, 40, 60.0)
+    pos = np.array([[1.2, 1.2, -1.0]])
+    rot = np.eye(3)[None]
+    tn, tf = np.zeros(len(dirs)), np.full(len(dirs), 6.0)
+    uni = K.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)[0]
+    hrt = K.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)[0]
+    assert hrt[K.M_RAYS] == pytest.approx(uni[K.M_RAYS], rel=0.05)
+    assert hrt[K.M_SIG] == pytest.approx(uni[K.M_SIG], rel=0.15)
+    assert hrt[K.M_FIG] == pytest.approx(uni[K.M_FIG], rel=0.25)

@@ -124,6 +124,16 @@ class OccupancyMap:
         lo = self.logodds
         return (lo >= self.model.l_free) & (lo <= self.model.l_occ)
 
+    def free_at(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point lies in a voxel of the free class (False outside the map)."""
+        P = np.asarray(points, float)
+        idx = np.floor((P - self.spec.bmin) / self.spec.res).astype(np.int64)
+        inside = np.all((idx >= 0) & (idx < np.array(self.spec.dims)), axis=1)
+        out = np.zeros(len(P), bool)
+        i = idx[inside]
+        out[inside] = self.logodds[i[:, 0], i[:, 1], i[:, 2]] < self.model.l_free
+        return out
+
     def unknown_count(self) -> int:
         return int(np.count_nonzero(self.unknown_mask()))
 

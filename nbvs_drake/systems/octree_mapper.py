@@ -134,7 +134,8 @@ class OctreeMapper(LeafSystem):
             tau: ControlSequence = self._tau.Eval(context)
             prior = motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
                                  np.random.default_rng([self.sc.seed, 13, k]))
-            icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg)
+            icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg,
+                                free_at=omap.free_at)
             if icp.applied:
                 c = icp.correction
                 pts, free_rays, X_WC = c.apply_points(pts), c.apply_points(free_rays), c.apply_pose(X_WC)

@@ -11,12 +11,15 @@ PYTHON="${PYTHON:-python3}"
 DEB_PKGS="libusb-1.0-0 libegl1 libegl-mesa0 libgl1-mesa-dri graphviz"
 DEB_PKGS_OPTIONAL="chromium"
 
-missing=""
-if command -v dpkg-query >/dev/null 2>&1; then
-  for p in $DEB_PKGS; do
-    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing="$missing $p"
+# not_installed PKG...: prints those of the Debian packages that are not installed
+not_installed() {
+  command -v dpkg-query >/dev/null 2>&1 || return 0
+  for p in "$@"; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || printf ' %s' "$p"
   done
-fi
+}
+
+missing="$(not_installed $DEB_PKGS)"
 if [ -n "$missing" ]; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "setup: installing Debian packages:$missing"
@@ -27,12 +30,7 @@ if [ -n "$missing" ]; then
     echo "setup: please install these Debian packages (as root):$missing" >&2
   fi
 fi
-optional=""
-if command -v dpkg-query >/dev/null 2>&1; then
-  for p in $DEB_PKGS_OPTIONAL; do
-    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || optional="$optional $p"
-  done
-fi
+optional="$(not_installed $DEB_PKGS_OPTIONAL)"
 if [ -n "$optional" ]; then
   if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
     echo "setup: installing optional Debian packages:$optional"

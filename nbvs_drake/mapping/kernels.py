@@ -78,6 +78,20 @@ def _axis_start(o, d, t0, lo, res, n):
 
 
 @nb.njit(cache=True, inline="always")
+def _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):
+    """RSV: whether the voxel right behind the hit voxel (i, j, k) along the ray (the next
+    voxel the DDA would enter) is unknown."""
+    if ti <= tj and ti <= tk:
+        i += si
+    elif tj <= tk:
+        j += sj
+    else:
+        k += sk
+    nx, ny, nz = cls.shape
+    return 0 <= i < nx and 0 <= j < ny and 0 <= k < nz and cls[i, j, k] == 1
+
+
+@nb.njit(cache=True, inline="always")
 def _dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk, i_lo, i_hi, j_lo, j_hi, k_lo, k_hi):
     """Amanatides & Woo: moves to the next voxel along the ray (the axis whose boundary comes
     first). Returns (i, j, k, ti, tj, tk, still inside [lo..hi] on every axis)."""
@@ -209,15 +223,7 @@ def _fine_segment(cls, H, bmin, res, ox, oy, oz, dx, dy, dz, t_in, t_out, i_lo, 
                 if mark[flat] >> 2 != vid:
                     mark[flat] = tag | _FIRST
                     out[M_OC_O] += fac
-            # rear side voxel: the next voxel along the ray
-            i2, j2, k2 = i, j, k
-            if ti <= tj and ti <= tk:
-                i2 += si
-            elif tj <= tk:
-                j2 += sj
-            else:
-                k2 += sk
-            if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz and cls[i2, j2, k2] == 1:
+            if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
                 out[M_RSV] += w
             return n_unknown, True
         if c == 1:  # unknown
@@ -502,15 +508,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                             if n_unknown <= mu:
                                 n_oc_rays += 1
                                 OHm = bit
-                            # rear side voxel: the next voxel along the ray
-                            i2, j2, k2 = i, j, k
-                            if ti <= tj and ti <= tk:
-                                i2 += si
-                            elif tj <= tk:
-                                j2 += sj
-                            else:
-                                k2 += sk
-                            if 0 <= i2 < nx and 0 <= j2 < ny and 0 <= k2 < nz and cls[i2, j2, k2] == 1:
+                            if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
                                 n_rsv += 1
                             nt = _flush(cf, Tm, Fm, OHm, vid, ctag, cT, cF, cOH, touched, nt)
                             hit = True

@@ -149,6 +149,11 @@ class MissionConfig:
     #: "icp": register each scan against the accumulated model and correct the believed
     #: pose (planar MAP point-to-plane ICP with the motion model's prior); "none": dead reckoning
     relocalization: str = "icp"
+    #: a scan whose registration fails (ambiguous, too little of the object in view, poor
+    #: fit) is counted but not integrated: a misplaced scan would corrupt the map and the
+    #: model the next scans register against; the pose uncertainty carries over to the next
+    #: registration's prior
+    skip_unregistered_scans: bool = True
     #: after a collision of the executed motion: "stop" the run (the seeds' robot
     #: experiments) or "continue" (the collision is counted)
     on_collision: str = "stop"

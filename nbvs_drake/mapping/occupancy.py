@@ -182,6 +182,11 @@ class OccupancyMap:
         return new, {"points": int(len(points) - n_free), "no_return_rays": n_free,
                      "object_points": int(hit.sum()), "voxels_updated": int(n_upd)}
 
+    def skipped(self) -> "OccupancyMap":
+        """The same map counting one more scan (a scan taken but not integrated)."""
+        return OccupancyMap(self.spec, self.model, self.logodds, self.object_points, self.scan_count + 1,
+                            self.wbox_min, self.wbox_max)
+
     def obstacle_boxes(self, max_boxes: int = 300) -> tuple[list, int]:
         """The unknown and occupied voxels of W_box as at most `max_boxes` merged boxes
         (centre, size) in metres, conservative (see mapping.boxes). Returns (boxes, block)."""

@@ -19,6 +19,10 @@ from ..sensor import axial_noise_sigma, ray_directions
 from ..config import resolve_sensor
 
 
+#: prior variances below this (1 mm, 1 mrad squared): the odometry is exact, no registration
+EXACT_ODOMETRY_VAR = 1e-6
+
+
 class ScanReport:
     """Immutable record of the last integrated scan."""
 
@@ -69,7 +73,10 @@ class OctreeMapper(LeafSystem):
     model accumulated from earlier scans (mission.relocalization = icp: planar MAP ICP with
     the executed plan's motion-model prior, `registration.register_scan`), and integrates it
     at the corrected pose by ray casting from the sensor origin; returns inside W_box above
-    the table are object points. The correction is published for the planner's belief.
+    the table are object points. The correction is published for the planner's belief. A
+    scan whose registration fails is counted but not integrated
+    (mission.skip_unregistered_scans), and its plan's pose uncertainty is added to the next
+    registration's prior. With exact odometry (no noise) nothing is registered.
 
     Input ports:
       - point_cloud (abstract PointCloud): the depth camera's cloud in the world frame.
@@ -85,8 +92,8 @@ class OctreeMapper(LeafSystem):
         registration result.
       - pose_correction (4): [scan index, dx, dy, dyaw] of the last scan (identity when the
         registration was rejected or is off).
-    State: abstract map, registration model and report; discrete [last plan scanned,
-    correction (4)].
+    State: abstract map, registration model and report; discrete [last plan scanned],
+    correction (4), pending pose covariance since the last registration (3x3).
     """
 
     def __init__(self, sc: Scenario, dt: float):
@@ -107,6 +114,7 @@ class OctreeMapper(LeafSystem):
         self._rep = self.DeclareAbstractState(AbstractValue.Make(ScanReport()))
         self._last = self.DeclareDiscreteState(np.array([-1.0]))
         self._corr = self.DeclareDiscreteState(np.zeros(4))
+        self._pending = self.DeclareDiscreteState(np.zeros(9))
         self.reg_cfg = RegistrationConfig()
         self.DeclareStateOutputPort("map", self._map)
         self.DeclareStateOutputPort("scan_report", self._rep)
@@ -130,23 +138,36 @@ class OctreeMapper(LeafSystem):
         k = omap.scan_count + 1
         t1 = time.perf_counter()
         icp = None
+        integrate = True
+        pending = context.get_discrete_state(self._pending).get_value().reshape(3, 3)
         if self.sc.mission.relocalization == "icp" and len(model.points):
             tau: ControlSequence = self._tau.Eval(context)
-            prior = motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
-                                 np.random.default_rng([self.sc.seed, 13, k]))
-            icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg,
-                                free_at=omap.free_at)
-            if icp.applied:
-                c = icp.correction
-                pts, free_rays, X_WC = c.apply_points(pts), c.apply_points(free_rays), c.apply_pose(X_WC)
+            prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
+                                           np.random.default_rng([self.sc.seed, 13, k]))
+            if np.any(np.diag(prior) > EXACT_ODOMETRY_VAR):  # else odometry is exact: nothing to correct
+                icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg,
+                                    free_at=omap.free_at)
+                if icp.applied:
+                    c = icp.correction
+                    pts, free_rays, X_WC = c.apply_points(pts), c.apply_points(free_rays), c.apply_pose(X_WC)
+                    pending = np.zeros((3, 3))
+                else:
+                    pending = prior
+                    integrate = not self.sc.mission.skip_unregistered_scans
         t_register = time.perf_counter() - t1
         t1 = time.perf_counter()
-        new, stats = omap.integrate(X_WC[:3, 3], pts, self.sc.mapper.table_clearance, free_rays)
+        if integrate:
+            new, stats = omap.integrate(X_WC[:3, 3], pts, self.sc.mapper.table_clearance, free_rays)
+            model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
+        else:
+            new, stats = omap.skipped(), {"points": int(len(pts)), "no_return_rays": int(len(free_rays)),
+                                          "object_points": 0, "voxels_updated": 0}
+        stats["integrated"] = integrate
         t_update = time.perf_counter() - t1
         corr = icp.correction if (icp is not None and icp.applied) else Correction()
         state.get_mutable_abstract_state(self._map).set_value(new)
-        state.get_mutable_abstract_state(self._model).set_value(
-            model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg))
+        state.get_mutable_abstract_state(self._model).set_value(model)
+        state.get_mutable_discrete_state().get_mutable_vector(self._pending).SetFromVector(pending.reshape(-1))
         state.get_mutable_abstract_state(self._rep).set_value(ScanReport(
             new.scan_count, plan_id=int(status[0]), t_sim=context.get_time(),
             render_s=t_render, update_s=t_update, register_s=t_register,

@@ -140,3 +140,36 @@ def test_mapper_registers_the_scan_and_publishes_the_correction(renderer):
     np.testing.assert_allclose(corr[1:], [res.correction.dx, res.correction.dy, res.correction.dyaw], atol=1e-9)
     # the scan went into the map at the corrected camera pose
     np.testing.assert_allclose(rep["sensor_origin"], Correction(*corr[1:]).apply_pose(Xb)[:3, 3], atol=1e-9)
+
+
+def test_mapper_skips_a_scan_it_cannot_register(renderer):
+    """A scan with the object out of view (too few points to register) is counted but not
+    integrated, and its plan's uncertainty carries over into the next prior."""
+    sc, r, s1 = renderer
+    q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, 0, 0.4)
+    mapper = OctreeMapper(sc, 0.1)
+    sim = Simulator(mapper)
+    ctx = sim.get_mutable_context()
+    cloud = PointCloud(len(s1.points), Fields(BaseField.kXYZs))
+    cloud.mutable_xyzs()[:] = s1.points.T
+    pc = mapper.GetInputPort("point_cloud").FixValue(ctx, AbstractValue.Make(cloud))
+    mapper.GetInputPort("camera_pose").FixValue(ctx, AbstractValue.Make(RigidTransform(r.kin.camera_poses(q0)[0])))
+    mapper.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
+    tau = mapper.GetInputPort("controls").FixValue(ctx, AbstractValue.Make(ControlSequence.empty(q0)))
+    status = mapper.GetInputPort("controller_status").FixValue(ctx, [0, 0, 1])
+    sim.AdvanceTo(0.05)
+    m1 = mapper.GetOutputPort("map").Eval(ctx)
+    far = P2[~region_mask(sc, P2, RegistrationConfig())][:500]  # nothing of the table or object
+    c2 = PointCloud(len(far), Fields(BaseField.kXYZs))
+    c2.mutable_xyzs()[:] = far.T
+    pc.GetMutableData().set_value(c2)
+    tau.GetMutableData().set_value(ControlSequence(1, 0.1, U, states))
+    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
+    sim.AdvanceTo(0.15)
+    m2 = mapper.GetOutputPort("map").Eval(ctx)
+    rep = mapper.GetOutputPort("scan_report").Eval(ctx).info
+    assert m2.scan_count == 2 and rep["integrated"] is False and rep["icp"]["reason"] == "too_few_points"
+    np.testing.assert_array_equal(m2.logodds, m1.logodds)
+    assert list(mapper.GetOutputPort("pose_correction").Eval(ctx)) == [2, 0, 0, 0]
+    pending = ctx.get_discrete_state(2).get_value().reshape(3, 3)
+    assert pending[2, 2] > 0.01  # the heading variance of the plan carries over

@@ -41,3 +41,12 @@ def random_states(kin, n, seed=0):
     q[:, 2] = rng.uniform(-np.pi, np.pi, n)
     q[:, 3:] = rng.uniform(kin.arm_lower, kin.arm_upper, (n, 5))
     return q
+
+
+def small_scenario(seed: int = 0, scans: int = 3, n_candidates: int = 600, gt_points: int = 8000) -> Scenario:
+    """The default scenario cut down for quick end-to-end runs."""
+    sc = load_scenario(seed=seed)
+    sc.mission.max_scans = scans
+    sc.planner.n_candidates = n_candidates
+    sc.scene.gt_points = gt_points
+    return sc

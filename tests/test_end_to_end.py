@@ -5,13 +5,11 @@ import pytest
 from nbvs_drake.config import load_scenario
 from nbvs_drake.mission import run_mission
 
+from conftest import small_scenario
+
 
 def _small(seed=0, scans=3):
-    sc = load_scenario(seed=seed)
-    sc.mission.max_scans = scans
-    sc.planner.n_candidates = 600
-    sc.scene.gt_points = 8000
-    return sc
+    return small_scenario(seed, scans)
 
 
 @pytest.fixture(scope="module")

@@ -8,16 +8,13 @@ import numpy as np
 import pytest
 
 from nbvs_drake import replay
-from nbvs_drake.config import load_scenario
 from nbvs_drake.mission import run_mission
+
+from conftest import small_scenario
 
 
 def _small(scans=3):
-    sc = load_scenario()
-    sc.mission.max_scans = scans
-    sc.planner.n_candidates = 500
-    sc.scene.gt_points = 5000
-    return sc
+    return small_scenario(0, scans, n_candidates=500, gt_points=5000)
 
 
 @pytest.fixture(scope="module")

@@ -33,6 +33,10 @@ def _cli_error(capsys, tmp_path, yaml_text, name="bad.yaml"):
     ("scene:\n  object:\n    kind: mesh\n    mesh: nowhere/bunny.ply\n", "object mesh not found"),
     ("scene:\n  object:\n    size: 0.9\n", "does not fit in the bounding box W_box"),
     ("scene: [1, 2\n", "malformed scenario"),
+    ("mission:\n  relocalization: gps\n", "mission.relocalization must be 'icp' or 'none'"),
+    ("mission:\n  on_collision: ignore\n", "mission.on_collision must be 'stop' or 'continue'"),
+    ("mission:\n  stop_min_surface: 1.5\n", "mission.stop_min_surface must be in [0, 1)"),
+    ("mission:\n  stop_unknown_voxels: -3\n", "mission.stop_unknown_voxels must be >= 0"),
 ])
 def test_bad_scenarios_get_one_line_errors(capsys, tmp_path, yaml_text, expect):
     err = _cli_error(capsys, tmp_path, yaml_text)

@@ -1,11 +1,12 @@
 """Scan registration and re-localisation (seed 000 §1, seed 003 Algorithm 1).
 
-Each new scan arrives in the world frame at the *believed* camera pose. Open3D's
-point-to-plane ICP registers it against the model accumulated from the earlier (corrected)
-scans; the transform T maps believed-frame points onto the model. Base noise moves the
-robot in the plane (x, y, theta; the arm is exact in Table 4), so T is projected onto a
-rotation about z plus a planar translation — a *correction* (dx, dy, dyaw) — that is applied
-to the scan (the map integrates it at the corrected pose) and to the believed robot state.
+Each new scan arrives in the world frame at the *believed* camera pose. `register_scan`
+aligns it with the model accumulated from the earlier (corrected) scans by a planar
+maximum-a-posteriori point-to-plane ICP: base noise moves the robot in the plane (x, y,
+theta; the arm is exact in Table 4), so the unknown is a *correction* (dx, dy, dyaw) — a
+rotation about z plus a planar translation — that is applied to the scan (the map
+integrates it at the corrected pose) and to the believed robot state. Its prior comes from
+rollouts of the executed plan through the noise model (`motion_prior`).
 
 The model keeps the returns of a registration region (the table top and what stands on it:
 W_box grown in x, y, from just below the table top up to the top of W_box), voxel-
@@ -19,6 +20,7 @@ import dataclasses as dc
 import numpy as np
 
 from .config import Scenario
+from .motion import noise_sigmas, rollout, sample_truncated_normal, wrap_angle
 
 
 @dc.dataclass
@@ -68,7 +70,7 @@ class Correction:
         x, y = q[0], q[1]
         q[0] = c * x - s * y + self.dx
         q[1] = s * x + c * y + self.dy
-        q[2] = float(np.arctan2(np.sin(q[2] + self.dyaw), np.cos(q[2] + self.dyaw)))
+        q[2] = float(wrap_angle(q[2] + self.dyaw))
         return q
 
     def compose(self, other: "Correction") -> "Correction":
@@ -86,16 +88,10 @@ def planar_projection(T: np.ndarray) -> Correction:
     return Correction(float(T[0, 3]), float(T[1, 3]), yaw)
 
 
-def correction_between(true_state_pose: np.ndarray, believed_pose: np.ndarray) -> Correction:
-    """The correction that maps the believed base/camera pose onto the true one (for tests
-    and logging): T = X_true X_believed^-1, projected to the plane."""
-    return planar_projection(np.asarray(true_state_pose) @ np.linalg.inv(np.asarray(believed_pose)))
-
-
 def state_error(q_true: np.ndarray, q_est: np.ndarray) -> tuple[float, float]:
     """(planar position error in m, absolute heading error in rad) of a state estimate."""
     d = np.asarray(q_true, float) - np.asarray(q_est, float)
-    return float(np.hypot(d[0], d[1])), float(abs(np.arctan2(np.sin(d[2]), np.cos(d[2]))))
+    return float(np.hypot(d[0], d[1])), float(abs(wrap_angle(d[2])))
 
 
 def region_mask(sc: Scenario, P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
@@ -156,24 +152,17 @@ def motion_prior(q_start: np.ndarray, controls: np.ndarray, dt: float, believed_
     """Covariance (3, 3) of the correction (dx, dy, dyaw) that maps the believed end state
     onto the true one, from n rollouts of the noisy motion model over the executed plan (the
     NoisyVelocityController's model). Zero noise gives a tiny covariance (ICP stays put)."""
-    from .motion import noise_sigmas, rollout, sample_truncated_normal
     controls = np.asarray(controls, float)
     if len(controls) == 0:
         return np.diag([1e-8, 1e-8, 1e-8])
     eps = sample_truncated_normal(rng, noise_sigmas(noise), noise.beta, (n, len(controls)))
     finals = rollout(q_start, controls[None] + eps, dt)[:, -1]
-    Xb = base_pose(believed_end)
-    xi = np.array([planar_projection(base_pose(f) @ np.linalg.inv(Xb)).to_json() for f in finals])
+    # X_final X_believed^-1 in the plane: dyaw = theta_f - theta_b, t = p_f - Rz(dyaw) p_b
+    b = np.asarray(believed_end, float)
+    dyaw = wrap_angle(finals[:, 2] - b[2])
+    c, s = np.cos(dyaw), np.sin(dyaw)
+    xi = np.stack([finals[:, 0] - (c * b[0] - s * b[1]), finals[:, 1] - (s * b[0] + c * b[1]), dyaw], axis=1)
     return np.cov(xi.T) + np.diag([1e-8, 1e-8, 1e-8])
-
-
-def base_pose(q: np.ndarray) -> np.ndarray:
-    """X_WB (4, 4) of the base of state q."""
-    c, s = np.cos(q[2]), np.sin(q[2])
-    X = np.eye(4)
-    X[:2, :2] = [[c, -s], [s, c]]
-    X[0, 3], X[1, 3] = q[0], q[1]
-    return X
 
 
 def _normals(P: np.ndarray, radius: float) -> np.ndarray:
@@ -204,9 +193,9 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
     the fit also charges every scan point that lands in space the map has seen free
     (`free_at(points) -> bool`, e.g. `OccupancyMap.free_at`): partial overlaps let a wrong
     pose match as many points as the right one, but not without putting surface into known
-    free space. Rejected
-    (identity, applied=False) when the model or the scan is too small, or the final fit is
-    poor."""
+    free space. Rejected (identity, applied=False) when the model or the scan is too small,
+    when another start ends far away with nearly the same fit (ambiguous), or when the final
+    fit is poor."""
     from scipy.spatial import cKDTree
     n_model, n_scan = len(model.points), len(scan_pts)
     sig = tuple(np.sqrt(np.diag(prior_cov)))

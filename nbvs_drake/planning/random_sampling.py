@@ -319,14 +319,15 @@ class RandomSamplingPlanner:
 
     def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
         """Arm limits, then the end state alone (one check rejects most failing tree
-        extensions), then the whole path at `max_step` resolution (after the escape prefix
-        of a start state in collision)."""
+        extensions), then the whole path at `max_step` resolution; a path that fails only
+        because its start state is in collision is accepted when it leaves the collision
+        within the escape prefix and is free from there on."""
         if not np.all(self.kin.arm_within_limits(states)) or not self.collision.free(states[-1:])[0]:
             return False
+        if self.collision.path_free(states, max_step=max_step):
+            return True
         start = self.escape_prefix(states)
-        if start is None:
-            return False
-        return self.collision.path_free(states[start:], max_step=max_step)
+        return bool(start) and self.collision.path_free(states[start:], max_step=max_step)
 
     def connect(self, q0: np.ndarray, q1: np.ndarray, rng: np.random.Generator | None = None):
         """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering

@@ -131,13 +131,13 @@ class OctreeMapper(LeafSystem):
         cloud = self._pc.Eval(context)
         t_render = time.perf_counter() - t0
         omap: OccupancyMap = context.get_abstract_state(self._map).get_value()
-        pts = clean_scan(cloud.xyzs())
-        pts = add_depth_noise(pts, X_WC, self.sc, omap.scan_count + 1)
+        k = omap.scan_count + 1
+        pts = add_depth_noise(clean_scan(cloud.xyzs()), X_WC, self.sc, k)
         free_rays = no_return_rays(self._depth.Eval(context).data, X_WC, self._dirs, self._z_far)
         model: RegistrationModel = context.get_abstract_state(self._model).get_value()
-        k = omap.scan_count + 1
         t1 = time.perf_counter()
         icp = None
+        corr = Correction()
         integrate = True
         pending = context.get_discrete_state(self._pending).get_value().reshape(3, 3)
         if self.sc.mission.relocalization == "icp" and len(model.points):
@@ -148,8 +148,8 @@ class OctreeMapper(LeafSystem):
                 icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg,
                                     free_at=omap.free_at)
                 if icp.applied:
-                    c = icp.correction
-                    pts, free_rays, X_WC = c.apply_points(pts), c.apply_points(free_rays), c.apply_pose(X_WC)
+                    corr = icp.correction
+                    pts, free_rays, X_WC = corr.apply_points(pts), corr.apply_points(free_rays), corr.apply_pose(X_WC)
                     pending = np.zeros((3, 3))
                 else:
                     pending = prior
@@ -164,7 +164,6 @@ class OctreeMapper(LeafSystem):
                                           "object_points": 0, "voxels_updated": 0}
         stats["integrated"] = integrate
         t_update = time.perf_counter() - t1
-        corr = icp.correction if (icp is not None and icp.applied) else Correction()
         state.get_mutable_abstract_state(self._map).set_value(new)
         state.get_mutable_abstract_state(self._model).set_value(model)
         state.get_mutable_discrete_state().get_mutable_vector(self._pending).SetFromVector(pending.reshape(-1))

@@ -8,9 +8,15 @@ rotation about z plus a planar translation — that is applied to the scan (the 
 integrates it at the corrected pose) and to the believed robot state. Its prior comes from
 rollouts of the executed plan through the noise model (`motion_prior`).
 
-The model keeps the returns of a registration region (the table top and what stands on it:
-W_box grown in x, y, from just below the table top up to the top of W_box), voxel-
-downsampled, so that it stays a few ten thousand points however many scans are merged.
+The model starts as the known environment (`environment_model`: points with exact normals
+on the table top's faces and legs, the chairs, inside the registration region) and keeps the
+returns of that region (the table top and what stands on it: W_box grown in x, y, from just
+below the table top up to the top of W_box) of every registered scan, voxel-downsampled, so
+that it stays a few ten thousand points however many scans are merged. The table's straight
+edges fix the pose where the object alone cannot (a body of revolution seen from one side,
+or a scan that misses the object), and a candidate pose must not make the scan see through
+a known solid (`KnownSolids.seen_through`): at a wrong pose the floor beyond the table's
+edge shows through the table top.
 """
 
 from __future__ import annotations
@@ -34,12 +40,17 @@ class RegistrationConfig:
     point_sigma: float = 0.005  #: m, std of a point-to-plane residual
     min_fitness: float = 0.3  #: share of the scan with a model point within the last distance
     #: fewer region points than this (the object mostly out of view): keep the odometry
-    min_scan_points: int = 3000
+    min_scan_points: int = 1500
     #: two starts converging this far apart (m, rad) with costs within this fraction: ambiguous
     ambiguity_m: float = 0.05
     ambiguity_rad: float = 0.05
     ambiguity_cost: float = 0.05
     max_rmse: float = 0.01  #: m, inlier point-to-plane RMSE of the last stage
+    see_through_tol: float = 0.03  #: m a ray may run inside a known solid (edges, noise)
+    #: start grid along the prior's two main axes (in its standard deviations)
+    grid_major: tuple = (-2.0, -1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0)
+    grid_minor: tuple = (-1.5, 0.0, 1.5)
+    refine_best: int = 4  #: grid starts refined to the last stage
 
 
 @dc.dataclass(frozen=True)
@@ -103,30 +114,124 @@ def region_mask(sc: Scenario, P: np.ndarray, cfg: RegistrationConfig) -> np.ndar
 
 
 class RegistrationModel:
-    """Immutable accumulated model (N, 3) float32 of the registration region."""
+    """Immutable accumulated model: points (N, 3) float32 of the registration region and
+    their normals (N, 3) float32, known for the environment's surfaces and zero where they
+    are to be estimated from the points (the merged scans)."""
 
-    __slots__ = ("points",)
+    __slots__ = ("points", "normals")
 
-    def __init__(self, points: np.ndarray | None = None):
+    def __init__(self, points: np.ndarray | None = None, normals: np.ndarray | None = None):
         pts = np.zeros((0, 3), np.float32) if points is None else np.asarray(points, np.float32)
+        nrm = np.zeros_like(pts) if normals is None else np.asarray(normals, np.float32)
+        if nrm.shape != pts.shape:
+            raise ValueError(f"normals {nrm.shape} do not match points {pts.shape}")
         pts.flags.writeable = False
-        self.points = pts
+        nrm.flags.writeable = False
+        self.points, self.normals = pts, nrm
 
     def __deepcopy__(self, memo):
         return self
 
     def merged(self, P: np.ndarray, cfg: RegistrationConfig) -> "RegistrationModel":
-        allp = np.concatenate([self.points, np.asarray(P, np.float32)])
-        return RegistrationModel(voxel_downsample(allp, cfg.model_voxel))
+        P = np.asarray(P, np.float32)
+        allp = np.concatenate([self.points, P])
+        idx = voxel_downsample_index(allp, cfg.model_voxel)
+        return RegistrationModel(allp[idx], np.concatenate([self.normals, np.zeros_like(P)])[idx])
 
 
-def voxel_downsample(P: np.ndarray, voxel: float) -> np.ndarray:
-    """One point per occupied voxel (the first), deterministic."""
+def box_surface_points(center, size, yaw: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the six faces of a box (a grid of about `spacing` on each face) and their
+    outward normals, world frame."""
+    c = np.asarray(center, float)
+    h = 0.5 * np.asarray(size, float)
+    pts, nrm = [], []
+    for ax in range(3):
+        u, v = [a for a in range(3) if a != ax]
+        nu, nv = (max(2, int(np.ceil(2 * h[a] / spacing)) + 1) for a in (u, v))
+        gu, gv = np.meshgrid(np.linspace(-h[u], h[u], nu), np.linspace(-h[v], h[v], nv), indexing="ij")
+        for sgn in (-1.0, 1.0):
+            F = np.zeros((gu.size, 3))
+            F[:, u], F[:, v], F[:, ax] = gu.ravel(), gv.ravel(), sgn * h[ax]
+            N = np.zeros_like(F)
+            N[:, ax] = sgn
+            pts.append(F)
+            nrm.append(N)
+    cy, sy = np.cos(yaw), np.sin(yaw)
+    R = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    return np.concatenate(pts) @ R.T + c, np.concatenate(nrm) @ R.T
+
+
+def environment_model(sc: Scenario, cfg: RegistrationConfig) -> RegistrationModel:
+    """The known environment (the table top, its legs, chairs) as points on its surfaces,
+    with their exact normals, inside the registration region: the model every scan is
+    registered against before any scan is merged. The robot knows this environment (the
+    planner checks collisions with it), and its straight edges fix the pose where the object
+    alone cannot (a body of revolution seen from one side)."""
+    from .scene import environment_boxes
+    faces = [box_surface_points(b.center, b.size, b.yaw, cfg.model_voxel)
+             for b in environment_boxes(sc) if b.name != "floor"]
+    if not faces:
+        return RegistrationModel()
+    P, N = np.concatenate([f[0] for f in faces]), np.concatenate([f[1] for f in faces])
+    keep = region_mask(sc, P, cfg)
+    P, N = P[keep], N[keep]
+    idx = voxel_downsample_index(P, cfg.model_voxel)
+    return RegistrationModel(P[idx], N[idx])
+
+
+@dc.dataclass(frozen=True)
+class KnownSolids:
+    """Boxes of the known environment (centre, half size, yaw each) that no ray can pass."""
+    centers: np.ndarray  #: (M, 3)
+    half: np.ndarray  #: (M, 3)
+    yaw: np.ndarray  #: (M,)
+
+    @staticmethod
+    def of(sc: Scenario) -> "KnownSolids":
+        from .scene import environment_boxes
+        boxes = environment_boxes(sc)
+        return KnownSolids(np.array([b.center for b in boxes], float).reshape(-1, 3),
+                           0.5 * np.array([b.size for b in boxes], float).reshape(-1, 3),
+                           np.array([b.yaw for b in boxes], float))
+
+    def seen_through(self, origin: np.ndarray, P: np.ndarray, tol: float) -> np.ndarray:
+        """Whether the ray from `origin` to each return runs more than `tol` through a solid:
+        a return the scene cannot have produced (it lies behind a known surface)."""
+        P = np.asarray(P, float)
+        out = np.zeros(len(P), bool)
+        for c, h, yaw in zip(self.centers, self.half, self.yaw):
+            cy, sy = np.cos(yaw), np.sin(yaw)
+            R = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+            o = (np.asarray(origin, float) - c) @ R
+            d = (P - c) @ R - o
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t1, t2 = (-h - o) / d, (h - o) / d
+            lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
+            par = d == 0  # parallel to a slab: inside it always or never
+            lo = np.where(par, np.where(np.abs(o) <= h, -np.inf, np.inf), lo)
+            hi = np.where(par, np.where(np.abs(o) <= h, np.inf, -np.inf), hi)
+            t0, t1_ = np.maximum(lo.max(axis=1), 0.0), np.minimum(hi.min(axis=1), 1.0)
+            out |= (t1_ - t0) * np.linalg.norm(d, axis=1) > tol
+        return out
+
+
+@dc.dataclass(frozen=True)
+class ScanView:
+    """The whole scan (believed world frame) seen from `origin`, and the known solids its
+    rays cannot have passed: what the registration checks a candidate pose against."""
+    origin: np.ndarray
+    points: np.ndarray
+    solids: KnownSolids
+
+
+def voxel_downsample_index(P: np.ndarray, voxel: float) -> np.ndarray:
+    """Indices of one point per occupied voxel (the first), in order: deterministic."""
     if len(P) == 0:
-        return P
-    key = np.floor(P / voxel).astype(np.int64)
+        return np.zeros(0, np.int64)
+    # keys from the float32 values the model stores, so that re-merging a model keeps it
+    key = np.floor(np.asarray(P, np.float32).astype(float) / voxel).astype(np.int64)
     _, idx = np.unique(key, axis=0, return_index=True)
-    return P[np.sort(idx)]
+    return np.sort(idx)
 
 
 @dc.dataclass
@@ -178,43 +283,34 @@ def _downsample(P: np.ndarray, voxel: float) -> np.ndarray:
     return np.asarray(pc.voxel_down_sample(voxel).points)
 
 
-def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.ndarray,
-                  cfg: RegistrationConfig, free_at=None) -> IcpResult:
-    """Planar maximum-a-posteriori point-to-plane ICP of the scan's region points (believed
-    world frame) against the model: Gauss-Newton over the correction xi = (dx, dy, dyaw)
-    (p' = Rz(dyaw) p + (dx, dy, 0)), minimising sum_i w_i (n_i . (p_i' - q_i))^2 / s^2 +
-    xi^T C^-1 xi, with the model's normals n_i (Open3D), robust (Huber) weights w_i,
-    s = `cfg.point_sigma`, and C the motion model's prior covariance (`motion_prior`).
-    Only the robot's motion space is searched, so tilt never trades against translation
-    (the failure of unconstrained 6-DOF ICP on these partial views), and directions the
-    overlap does not observe (a body of revolution turned about its axis) stay at the
-    odometry estimate instead of sliding. Coarse to fine over `cfg.stages`, from several
-    starts along the prior's principal axes; the start whose result fits best wins, where
-    the fit also charges every scan point that lands in space the map has seen free
-    (`free_at(points) -> bool`, e.g. `OccupancyMap.free_at`): partial overlaps let a wrong
-    pose match as many points as the right one, but not without putting surface into known
-    free space. Rejected (identity, applied=False) when the model or the scan is too small,
-    when another start ends far away with nearly the same fit (ambiguous), or when the final
-    fit is poor."""
-    from scipy.spatial import cKDTree
-    n_model, n_scan = len(model.points), len(scan_pts)
-    sig = tuple(np.sqrt(np.diag(prior_cov)))
-    if n_model < 100 or n_scan < cfg.min_scan_points:
-        return IcpResult(Correction(), 0.0, 0.0, False, "too_few_points", n_model, n_scan, sig)
-    Q = np.asarray(model.points, float)
-    NQ = _normals(Q, 2.5 * cfg.model_voxel)
-    tree = cKDTree(Q)
-    Cinv = np.linalg.inv(prior_cov)
-    s2 = cfg.point_sigma ** 2
-    fine = _downsample(scan_pts, cfg.model_voxel)
-    coarse = {v: (_downsample(scan_pts, v) if v > cfg.model_voxel else fine) for v, _ in cfg.stages}
+class PlanarIcp:
+    """The planar MAP point-to-plane problem of one scan against one model (see
+    `register_scan`): `refine(xi)` runs the coarse-to-fine Gauss-Newton from xi, `evaluate(xi)`
+    gives (MAP cost, fitness, rmse) of a correction."""
 
-    def refine(xi):
-        for voxel, dist in cfg.stages:
-            P = coarse[voxel]
+    def __init__(self, scan_pts, model: RegistrationModel, prior_cov, cfg: RegistrationConfig, free_at=None,
+                 view: ScanView | None = None):
+        from scipy.spatial import cKDTree
+        self.cfg, self.free_at, self.view = cfg, free_at, view
+        self.view_pts = _downsample(view.points, cfg.model_voxel) if view is not None and len(view.points) else None
+        self.Q = np.asarray(model.points, float)
+        self.NQ = _normals(self.Q, 2.5 * cfg.model_voxel)
+        known = np.any(model.normals != 0, axis=1)
+        self.NQ[known] = model.normals[known]
+        self.tree = cKDTree(self.Q)
+        self.Cinv = np.linalg.inv(prior_cov)
+        self.fine = _downsample(scan_pts, cfg.model_voxel)
+        self.coarse = {v: (_downsample(scan_pts, v) if v > cfg.model_voxel else self.fine) for v, _ in cfg.stages}
+
+    def refine(self, xi, stages=None):
+        cfg, Q, NQ, Cinv = self.cfg, self.Q, self.NQ, self.Cinv
+        s2 = cfg.point_sigma ** 2
+        xi = np.array(xi, float)
+        for voxel, dist in (cfg.stages if stages is None else stages):
+            P = self.coarse[voxel]
             for _ in range(cfg.max_iterations):
                 X = Correction(*xi).apply_points(P)
-                d, j = tree.query(X, distance_upper_bound=dist)
+                d, j = self.tree.query(X, distance_upper_bound=dist)
                 ok = np.isfinite(d)
                 if ok.sum() < 10:
                     break
@@ -230,33 +326,79 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
                     break
         return xi
 
-    def evaluate(xi):
+    def evaluate(self, xi):
         """(MAP cost, fitness, rmse): the cost caps residuals at the last distance and sums
         them over the points on structure that plane motion can observe (non-horizontal
         surfaces, or no model point near); fitness and rmse are over all points."""
-        X = Correction(*xi).apply_points(fine)
+        cfg, Q, NQ = self.cfg, self.Q, self.NQ
+        s2 = cfg.point_sigma ** 2
+        xi = np.asarray(xi, float)
+        X = Correction(*xi).apply_points(self.fine)
         dmax = cfg.stages[-1][1]
-        d, j = tree.query(X, distance_upper_bound=dmax)
+        d, j = self.tree.query(X, distance_upper_bound=dmax)
         ok = np.isfinite(d)
         jj = np.where(ok, j, 0)
         r = np.where(ok, np.sum(NQ[jj] * (X - Q[jj]), axis=1), dmax)
         structure = np.where(ok, np.abs(NQ[jj][:, 2]) < 0.7, True)
         rs = r[structure]
-        cost = float(np.sum(np.minimum(rs * rs, dmax * dmax)) / s2 + xi @ Cinv @ xi)
-        if free_at is not None:  # surface in known free space costs like an unmatched point
-            cost += float(np.count_nonzero(free_at(X))) * dmax * dmax / s2
+        cost = float(np.sum(np.minimum(rs * rs, dmax * dmax)) / s2 + xi @ self.Cinv @ xi)
+        if self.free_at is not None:  # surface in known free space costs like an unmatched point
+            cost += float(np.count_nonzero(self.free_at(X))) * dmax * dmax / s2
+        if self.view_pts is not None:  # so does a return seen through a known solid
+            corr = Correction(*xi)
+            o = corr.apply_points(np.asarray(self.view.origin, float)[None])[0]
+            bad = self.view.solids.seen_through(o, corr.apply_points(self.view_pts), cfg.see_through_tol)
+            cost += float(np.count_nonzero(bad)) * dmax * dmax / s2
         fit = float(ok.mean())
         rmse = float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else 0.0
         return cost, fit, rmse
 
-    # starts: the odometry estimate and +-1.5 sigma along the prior's principal axes
+
+def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.ndarray,
+                  cfg: RegistrationConfig, free_at=None, view: ScanView | None = None) -> IcpResult:
+    """Planar maximum-a-posteriori point-to-plane ICP of the scan's region points (believed
+    world frame) against the model: Gauss-Newton over the correction xi = (dx, dy, dyaw)
+    (p' = Rz(dyaw) p + (dx, dy, 0)), minimising sum_i w_i (n_i . (p_i' - q_i))^2 / s^2 +
+    xi^T C^-1 xi, with the model's normals n_i (Open3D), robust (Huber) weights w_i,
+    s = `cfg.point_sigma`, and C the motion model's prior covariance (`motion_prior`).
+    Only the robot's motion space is searched, so tilt never trades against translation
+    (the failure of unconstrained 6-DOF ICP on these partial views), and directions the
+    overlap does not observe (a body of revolution turned about its axis) stay at the
+    odometry estimate instead of sliding. Starts on a grid along the prior's two main axes
+    (`cfg.grid_major` x `cfg.grid_minor` standard deviations), each refined at the coarse
+    stage; the `cfg.refine_best` best distinct ones are refined coarse to fine over
+    `cfg.stages`, and the best fit wins, where the fit also charges every scan point that
+    lands in space the map has seen free (`free_at(points) -> bool`, e.g.
+    `OccupancyMap.free_hits`) and, given the whole scan (`view`), every return whose ray
+    passes through a known solid: partial overlaps let a wrong pose match as many points as
+    the right one, but not without putting surface into known free space or seeing through
+    the table. Rejected (identity, applied=False) when the model or the scan is too small,
+    when another start ends far away with nearly the same fit (ambiguous), or when the final
+    fit is poor."""
+    n_model, n_scan = len(model.points), len(scan_pts)
+    sig = tuple(np.sqrt(np.diag(prior_cov)))
+    if n_model < 100 or n_scan < cfg.min_scan_points:
+        return IcpResult(Correction(), 0.0, 0.0, False, "too_few_points", n_model, n_scan, sig)
+    prob = PlanarIcp(scan_pts, model, prior_cov, cfg, free_at, view)
+    # starts: a grid along the prior's two main axes (heading error and the sideways drift
+    # it causes dominate), each refined at the coarse stage; the best few go to the end
     evals, evecs = np.linalg.eigh(prior_cov)
-    starts = [np.zeros(3)] + [sgn * 1.5 * np.sqrt(max(ev, 0.0)) * evecs[:, i]
-                              for i, ev in enumerate(evals) if ev > 1e-6 for sgn in (1, -1)]
-    results = []
+    sd = np.sqrt(np.maximum(evals, 0.0))
+    starts = [a * sd[2] * evecs[:, 2] + b * sd[1] * evecs[:, 1] for a in cfg.grid_major for b in cfg.grid_minor]
+    coarse = []
     for x0 in starts:
-        xi = refine(np.array(x0, float))
-        results.append((*evaluate(xi), xi))
+        xi = prob.refine(x0, cfg.stages[:1])
+        coarse.append((prob.evaluate(xi)[0], tuple(np.round(xi, 4)), xi))
+    coarse.sort(key=lambda r: r[:2])
+    results, seen = [], []
+    for _, _, x0 in coarse:
+        if len(results) >= cfg.refine_best:
+            break
+        if any(np.hypot(*(x0[:2] - y[:2])) < 0.01 and abs(x0[2] - y[2]) < 0.01 for y in seen):
+            continue  # same basin
+        seen.append(x0)
+        xi = prob.refine(x0)
+        results.append((*prob.evaluate(xi), xi))
     results.sort(key=lambda r: r[0])
     best_cost, fitness, rmse, xi = results[0]
     # ambiguity: another start converged elsewhere to (nearly) as good a fit -> the overlap

@@ -134,6 +134,12 @@ class OccupancyMap:
         out[inside] = self.logodds[i[:, 0], i[:, 1], i[:, 2]] < self.model.l_free
         return out
 
+    def free_hits(self, points: np.ndarray, table_clearance: float) -> np.ndarray:
+        """Points this map would integrate as object hits (`object_mask`) that lie in known
+        free space: what a scan at a wrong pose contradicts. Returns on the table top are
+        left out (they are misses here, so the voxel above the table is free)."""
+        return self.object_mask(np.asarray(points, float), table_clearance) & self.free_at(points)
+
     def unknown_count(self) -> int:
         return int(np.count_nonzero(self.unknown_mask()))
 

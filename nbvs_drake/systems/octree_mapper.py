@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 
 import numpy as np
@@ -13,8 +14,8 @@ from pydrake.systems.framework import LeafSystem
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..motion import ControlSequence
-from ..registration import (Correction, RegistrationConfig, RegistrationModel, motion_prior, region_mask,
-                            register_scan)
+from ..registration import (Correction, KnownSolids, RegistrationConfig, RegistrationModel, ScanView,
+                            environment_model, motion_prior, region_mask, register_scan)
 from ..sensor import axial_noise_sigma, ray_directions
 from ..config import resolve_sensor
 
@@ -70,8 +71,9 @@ class OctreeMapper(LeafSystem):
     hit/miss with clamping; free < 0.45 <= unknown <= 0.55 < occupied). When the controller
     reports that a new plan has finished (idle), it takes one scan: the point cloud (world
     frame, at the believed camera pose), drops invalid returns, registers it against the
-    model accumulated from earlier scans (mission.relocalization = icp: planar MAP ICP with
-    the executed plan's motion-model prior, `registration.register_scan`), and integrates it
+    model (mission.relocalization = icp: the known environment plus the earlier scans;
+    planar MAP ICP with the executed plan's motion-model prior and the see-through check of
+    the whole scan against the known solids, `registration.register_scan`), and integrates it
     at the corrected pose by ray casting from the sensor origin; returns inside W_box above
     the table are object points. The correction is published for the planner's belief. A
     scan whose registration fails is counted but not integrated
@@ -110,12 +112,14 @@ class OctreeMapper(LeafSystem):
         self._tau = self.DeclareAbstractInputPort(
             "controls", AbstractValue.Make(ControlSequence.empty(np.array(sc.robot.start, float))))
         self._map = self.DeclareAbstractState(AbstractValue.Make(empty))
-        self._model = self.DeclareAbstractState(AbstractValue.Make(RegistrationModel()))
+        self.reg_cfg = RegistrationConfig()
+        self._solids = KnownSolids.of(sc)
+        model0 = environment_model(sc, self.reg_cfg) if sc.mission.relocalization == "icp" else RegistrationModel()
+        self._model = self.DeclareAbstractState(AbstractValue.Make(model0))
         self._rep = self.DeclareAbstractState(AbstractValue.Make(ScanReport()))
         self._last = self.DeclareDiscreteState(np.array([-1.0]))
         self._corr = self.DeclareDiscreteState(np.zeros(4))
         self._pending = self.DeclareDiscreteState(np.zeros(9))
-        self.reg_cfg = RegistrationConfig()
         self.DeclareStateOutputPort("map", self._map)
         self.DeclareStateOutputPort("scan_report", self._rep)
         self.DeclareStateOutputPort("pose_correction", self._corr)
@@ -140,13 +144,15 @@ class OctreeMapper(LeafSystem):
         corr = Correction()
         integrate = True
         pending = context.get_discrete_state(self._pending).get_value().reshape(3, 3)
-        if self.sc.mission.relocalization == "icp" and len(model.points):
+        if self.sc.mission.relocalization == "icp" and omap.scan_count > 0:
             tau: ControlSequence = self._tau.Eval(context)
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
                                            np.random.default_rng([self.sc.seed, 13, k]))
             if np.any(np.diag(prior) > EXACT_ODOMETRY_VAR):  # else odometry is exact: nothing to correct
                 icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg,
-                                    free_at=omap.free_at)
+                                    free_at=functools.partial(omap.free_hits,
+                                                              table_clearance=self.sc.mapper.table_clearance),
+                                    view=ScanView(X_WC[:3, 3], pts, self._solids))
                 if icp.applied:
                     corr = icp.correction
                     pts, free_rays, X_WC = corr.apply_points(pts), corr.apply_points(free_rays), corr.apply_pose(X_WC)

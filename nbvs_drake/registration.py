@@ -53,6 +53,12 @@ class RegistrationConfig:
     refine_best: int = 4  #: grid starts refined to the last stage
 
 
+def rot_z(yaw: float) -> np.ndarray:
+    """3x3 rotation about z."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 @dc.dataclass(frozen=True)
 class Correction:
     """Planar rigid correction: p' = Rz(dyaw) p + (dx, dy, 0)."""
@@ -61,9 +67,8 @@ class Correction:
     dyaw: float = 0.0
 
     def matrix(self) -> np.ndarray:
-        c, s = np.cos(self.dyaw), np.sin(self.dyaw)
         T = np.eye(4)
-        T[:2, :2] = [[c, -s], [s, c]]
+        T[:3, :3] = rot_z(self.dyaw)
         T[0, 3], T[1, 3] = self.dx, self.dy
         return T
 
@@ -156,8 +161,7 @@ def box_surface_points(center, size, yaw: float, spacing: float) -> tuple[np.nda
             N[:, ax] = sgn
             pts.append(F)
             nrm.append(N)
-    cy, sy = np.cos(yaw), np.sin(yaw)
-    R = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+    R = rot_z(yaw)
     return np.concatenate(pts) @ R.T + c, np.concatenate(nrm) @ R.T
 
 
@@ -200,8 +204,7 @@ class KnownSolids:
         P = np.asarray(P, float)
         out = np.zeros(len(P), bool)
         for c, h, yaw in zip(self.centers, self.half, self.yaw):
-            cy, sy = np.cos(yaw), np.sin(yaw)
-            R = np.array([[cy, -sy, 0.0], [sy, cy, 0.0], [0.0, 0.0, 1.0]])
+            R = rot_z(yaw)
             o = (np.asarray(origin, float) - c) @ R
             d = (P - c) @ R - o
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -333,7 +336,8 @@ class PlanarIcp:
         cfg, Q, NQ = self.cfg, self.Q, self.NQ
         s2 = cfg.point_sigma ** 2
         xi = np.asarray(xi, float)
-        X = Correction(*xi).apply_points(self.fine)
+        corr = Correction(*xi)
+        X = corr.apply_points(self.fine)
         dmax = cfg.stages[-1][1]
         d, j = self.tree.query(X, distance_upper_bound=dmax)
         ok = np.isfinite(d)
@@ -345,7 +349,6 @@ class PlanarIcp:
         if self.free_at is not None:  # surface in known free space costs like an unmatched point
             cost += float(np.count_nonzero(self.free_at(X))) * dmax * dmax / s2
         if self.view_pts is not None:  # so does a return seen through a known solid
-            corr = Correction(*xi)
             o = corr.apply_points(np.asarray(self.view.origin, float)[None])[0]
             bad = self.view.solids.seen_through(o, corr.apply_points(self.view_pts), cfg.see_through_tol)
             cost += float(np.count_nonzero(bad)) * dmax * dmax / s2

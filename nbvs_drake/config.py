@@ -125,6 +125,13 @@ class PlannerConfig:
     #: scenario's control noise (seed 000 Algorithm 1) over the candidates with a path
     utility: str = "du"
     eu_samples: int = 500  #: k rollouts per candidate (Table 7: 500)
+    #: how the k rollouts' utilities are combined: "probability" (Algorithm 1 lines 10-12:
+    #: weights = normalised products of the m per-step densities; for plans of ~30-100
+    #: controls their effective sample size is a few rollouts, so the least-noisy rollout
+    #: decides) or "mean" (each rollout is a draw from the error distribution, so the plain
+    #: average estimates "the average utility when the robot moves to the indicated state many
+    #: times", §7.2)
+    eu_weighting: str = "probability"
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or
@@ -306,6 +313,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.top_k > 0, f"planner.top_k must be > 0, got {p.top_k}")
     _require(p.utility in ("du", "eu"), f"planner.utility must be 'du' or 'eu', got {p.utility!r}")
     _require(p.eu_samples >= 1, f"planner.eu_samples must be >= 1, got {p.eu_samples}")
+    _require(p.eu_weighting in ("mean", "probability"),
+             f"planner.eu_weighting must be 'mean' or 'probability', got {p.eu_weighting!r}")
     _require(0 < p.eu_alpha < 1 and 0 < p.eu_gamma < 0.99,
              f"planner.eu_alpha and eu_gamma must be in (0, 1), got {p.eu_alpha}, {p.eu_gamma}")
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),

@@ -1,6 +1,7 @@
 """Runs a reconstruction mission: the Drake Simulator advances the mission diagram until the
 planner stops (scan budget spent, no valid candidate, no path); then the results are written:
-summary.json, iterations.jsonl (written during the run), model.ply, map.npz, coverage.png."""
+scenario.yaml (the resolved scenario, written first), summary.json, iterations.jsonl (written
+during the run), model.ply, map.npz, coverage.png."""
 
 from __future__ import annotations
 
@@ -60,6 +61,10 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
+    # the resolved scenario (seed, defaults filled in): `nbvs reconstruct --scenario
+    # OUT/scenario.yaml` repeats the run
+    from pydrake.common.yaml import yaml_dump_typed
+    (out / "scenario.yaml").write_text(yaml_dump_typed(sc))
     log = IterationLog(out / "iterations.jsonl", echo=_print_iteration if verbose else None)
     md = build_mission_diagram(sc, out / "scene", log, meshcat=meshcat)
     if verbose:

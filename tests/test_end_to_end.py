@@ -36,6 +36,7 @@ def test_short_run_writes_everything(small_run):
     assert [json.loads(x)["iteration"] for x in lines] == [1, 2, 3]
     ply = (out / "model.ply").read_bytes()
     assert ply.startswith(b"ply\n") and f"element vertex {disk['object_points']}".encode() in ply
+    assert load_scenario(out / "scenario.yaml") == _small()  # the resolved scenario repeats the run
 
 
 def test_same_seed_same_summary(small_run, tmp_path):

@@ -6,7 +6,12 @@ u_t + eps_t, eps truncated Gaussian); every intermediate state of every rollout 
 collision with Drake (in batches); any colliding rollout makes the candidate unfeasible (the
 conservative rule of Algorithm 1, line 7). Otherwise the utility of each final state is
 weighted by its probability, the product of the per-step densities computed in log space
-(hundreds of densities underflow) and normalised.
+(hundreds of densities underflow) and normalised (weighting "probability", Algorithm 1 lines
+10-12), or averaged with equal weights (weighting "mean": the rollouts are already draws from
+the error distribution, so their plain average is the Monte Carlo estimate of the expected
+utility). The products of m densities spread over ~sqrt(m) in log space, so for the ~100-step
+plans here the normalised weights put almost all mass on one rollout: `ess` reports their
+effective sample size (sum w)^2 / sum w^2.
 """
 
 from __future__ import annotations
@@ -40,16 +45,22 @@ class ExpectedUtility:
     final_states: np.ndarray | None = None
     utilities: np.ndarray | None = None
     weights: np.ndarray | None = None
+    ess: float = 0.0  #: effective sample size of the weights (k for "mean")
+    spread: float = 0.0  #: standard deviation of the rollouts' utilities
 
     def to_json(self) -> dict:
         return {"feasible": self.feasible, "eu": self.value, "k": self.rollouts,
-                "rollouts_checked": self.rollouts_checked, "collided_rollouts": self.collided_rollouts}
+                "rollouts_checked": self.rollouts_checked, "collided_rollouts": self.collided_rollouts, "ess": self.ess, "g_std": self.spread}
 
 
 def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, noise: NoiseConfig,
                      rng: np.random.Generator, state_free: Callable[[np.ndarray], np.ndarray],
-                     utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100) -> ExpectedUtility:
-    """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,)."""
+                     utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100,
+                     weighting: str = "probability") -> ExpectedUtility:
+    """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,);
+    weighting "mean" or "probability" (see the module docstring)."""
+    if weighting not in ("mean", "probability"):
+        raise ValueError(f"weighting must be 'mean' or 'probability', got {weighting!r}")
     controls = np.asarray(controls, float)
     m = len(controls)
     sigma = noise_sigmas(noise)
@@ -64,9 +75,13 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         if bad:
             collided += bad
             return ExpectedUtility(False, 0.0, k, checked, collided)
-    logp = truncated_normal_logpdf(eps, sigma, noise.beta).sum(axis=1)  # log prod_t p_t
-    w = np.exp(logp - logp.max())
-    w /= w.sum()
+    if weighting == "probability":
+        logp = truncated_normal_logpdf(eps, sigma, noise.beta).sum(axis=1)  # log prod_t p_t
+        w = np.exp(logp - logp.max())
+        w /= w.sum()
+    else:
+        w = np.full(k, 1.0 / k)
     finals = states[:, -1]
     g = np.asarray(utility(finals), float)
-    return ExpectedUtility(True, float(np.dot(w, g)), k, checked, 0, finals, g, w)
+    ess = float(1.0 / np.sum(w * w))
+    return ExpectedUtility(True, float(np.dot(w, g)), k, checked, 0, finals, g, w, ess, float(g.std()))

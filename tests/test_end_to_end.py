@@ -39,6 +39,22 @@ def test_short_run_writes_everything(small_run):
     assert load_scenario(out / "scenario.yaml") == _small()  # the resolved scenario repeats the run
 
 
+def test_clearance_script_measures_the_executed_paths(small_run):
+    """scripts/clearance.py recomputes, from the run directory alone, the executed motions'
+    closest approach to the true world: positive (no collision), one value per trajectory."""
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "scripts" / "clearance.py"
+    spec = importlib.util.spec_from_file_location("clearance", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out, s = small_run
+    c = mod.run_clearance(out)
+    assert c["trajectories"] == s["executed_trajectories"] == 2
+    assert 0.0 < c["min_clearance_m"] < 1.0 and c["nearest"]
+    assert c["min_clearance_m"] == pytest.approx(min(c["per_trajectory_m"]), abs=1e-4)
+
+
 def test_same_seed_same_summary(small_run, tmp_path):
     out, s1 = small_run
     s2 = run_mission(_small(), tmp_path, verbose=False)

@@ -20,20 +20,16 @@ import numpy as np
 
 
 def run_clearance(run: Path, influence: float = 1.0) -> dict:
-    from pydrake.planning import RobotDiagramBuilder
-
     from nbvs_drake.config import load_scenario
-    from nbvs_drake.robot import RobotKinematics, add_robot
-    from nbvs_drake.scene import add_environment
+    from nbvs_drake.planning.collision import CollisionModel
+    from nbvs_drake.robot import RobotKinematics
 
     sc = load_scenario(run / "scenario.yaml")
     kin = RobotKinematics(sc.robot.urdf)
-    rdb = RobotDiagramBuilder(time_step=0.0)
-    plant = rdb.plant()
-    robot = add_robot(plant, sc.robot.urdf)
-    add_environment(plant, sc, object_obj=str(run / "scene" / "object.obj"), visual=False, add_wbox_obstacle=False)
-    plant.Finalize()
-    diagram = rdb.Build()
+    # the world the CollisionMonitor checks: robot, environment, the true object
+    model = CollisionModel(sc, kin, object_obj=str(run / "scene" / "object.obj"))
+    diagram, plant = model.diagram, model.diagram.plant()
+    robot = model.checker.robot_model_instances()[0]
     ctx = diagram.CreateDefaultContext()
     pctx = plant.GetMyContextFromRoot(ctx)
     sg = diagram.scene_graph()

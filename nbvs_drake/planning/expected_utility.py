@@ -50,7 +50,8 @@ class ExpectedUtility:
 
     def to_json(self) -> dict:
         return {"feasible": self.feasible, "eu": self.value, "k": self.rollouts,
-                "rollouts_checked": self.rollouts_checked, "collided_rollouts": self.collided_rollouts, "ess": self.ess, "g_std": self.spread}
+                "rollouts_checked": self.rollouts_checked, "collided_rollouts": self.collided_rollouts,
+                "ess": self.ess, "g_std": self.spread}
 
 
 def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, noise: NoiseConfig,

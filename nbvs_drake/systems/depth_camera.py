@@ -14,7 +14,7 @@ from pydrake.systems.sensors import PixelType, RgbdSensor
 
 from ..config import SensorConfig, resolve_sensor
 from ..robot import CAMERA_BODY, RobotKinematics
-from ..sensor import camera_info
+from ..sensor import camera_info, render_camera_info
 
 RENDERER = "vtk"
 
@@ -31,7 +31,7 @@ def add_depth_camera(builder, scene_graph, plant, sensor: SensorConfig):
     s = resolve_sensor(sensor)
     add_renderer(scene_graph)
     info = camera_info(sensor)
-    core = RenderCameraCore(RENDERER, info, ClippingRange(0.05, s.z_far + 1.0), RigidTransform())
+    core = RenderCameraCore(RENDERER, render_camera_info(sensor), ClippingRange(0.05, s.z_far + 1.0), RigidTransform())
     cam = DepthRenderCamera(core, DepthRange(s.z_near, s.z_far))
     fid = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(CAMERA_BODY).index())
     rgbd = builder.AddNamedSystem("depth_camera", RgbdSensor(fid, RigidTransform(), cam, False))

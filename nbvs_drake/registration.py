@@ -321,7 +321,10 @@ class PlanarIcp:
                 r = np.sum(n * (x - q), axis=1)
                 rx, ry = x[:, 0] - xi[0], x[:, 1] - xi[1]
                 J = np.stack([n[:, 0], n[:, 1], n[:, 0] * -ry + n[:, 1] * rx], axis=1)
-                w = 1.0 / np.maximum(1.0, np.abs(r) / (2.0 * cfg.point_sigma))
+                # Cauchy weights: a wrong correspondence's pull fades with its residual (Huber
+                # weights keep it constant, and at the coarse stage's 15 cm the many wrong
+                # matches of a partial overlap dragged even the true pose off)
+                w = 1.0 / (1.0 + (r / (2.0 * cfg.point_sigma)) ** 2)
                 A = (J * w[:, None]).T @ J / s2 + Cinv
                 step = -np.linalg.solve(A, (J * w[:, None]).T @ r / s2 + Cinv @ xi)
                 xi = xi + step
@@ -362,7 +365,8 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
     """Planar maximum-a-posteriori point-to-plane ICP of the scan's region points (believed
     world frame) against the model: Gauss-Newton over the correction xi = (dx, dy, dyaw)
     (p' = Rz(dyaw) p + (dx, dy, 0)), minimising sum_i w_i (n_i . (p_i' - q_i))^2 / s^2 +
-    xi^T C^-1 xi, with the model's normals n_i (Open3D), robust (Huber) weights w_i,
+    xi^T C^-1 xi, with the model's normals n_i (Open3D), robust (Cauchy) weights
+    w_i = 1 / (1 + (r_i / 2s)^2),
     s = `cfg.point_sigma`, and C the motion model's prior covariance (`motion_prior`).
     Only the robot's motion space is searched, so tilt never trades against translation
     (the failure of unconstrained 6-DOF ICP on these partial views), and directions the

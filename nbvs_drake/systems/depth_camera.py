@@ -31,7 +31,8 @@ def add_depth_camera(builder, scene_graph, plant, sensor: SensorConfig):
     s = resolve_sensor(sensor)
     add_renderer(scene_graph)
     info = camera_info(sensor)
-    core = RenderCameraCore(RENDERER, render_camera_info(sensor), ClippingRange(0.05, s.z_far + 1.0), RigidTransform())
+    core = RenderCameraCore(RENDERER, render_camera_info(sensor), ClippingRange(0.05, s.z_far + 1.0),
+                            RigidTransform())
     cam = DepthRenderCamera(core, DepthRange(s.z_near, s.z_far))
     fid = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(CAMERA_BODY).index())
     rgbd = builder.AddNamedSystem("depth_camera", RgbdSensor(fid, RigidTransform(), cam, False))

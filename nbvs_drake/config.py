@@ -132,6 +132,10 @@ class PlannerConfig:
     #: average estimates "the average utility when the robot moves to the indicated state many
     #: times", §7.2)
     eu_weighting: str = "probability"
+    #: share of the k rollouts that may collide (with the planning obstacles: the table and
+    #: W_box or its unknown voxels) before a candidate is unfeasible; colliding rollouts
+    #: count with g = 0. 0: any collision rules the candidate out (Algorithm 1, line 7)
+    eu_max_collision_rate: float = 0.0
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or
@@ -315,6 +319,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.eu_samples >= 1, f"planner.eu_samples must be >= 1, got {p.eu_samples}")
     _require(p.eu_weighting in ("mean", "probability"),
              f"planner.eu_weighting must be 'mean' or 'probability', got {p.eu_weighting!r}")
+    _require(_finite(p.eu_max_collision_rate) and 0 <= p.eu_max_collision_rate < 1,
+             f"planner.eu_max_collision_rate must be in [0, 1), got {p.eu_max_collision_rate}")
     _require(0 < p.eu_alpha < 1 and 0 < p.eu_gamma < 0.99,
              f"planner.eu_alpha and eu_gamma must be in (0, 1), got {p.eu_alpha}, {p.eu_gamma}")
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),

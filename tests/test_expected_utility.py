@@ -90,3 +90,26 @@ def test_mean_weighting_is_the_plain_monte_carlo_average_and_probability_weights
     np.testing.assert_allclose(prob.final_states, mean.final_states)  # same draws, other weights
     with pytest.raises(ValueError, match="weighting"):
         expected_utility(q0, controls, 0.1, 5, NoiseConfig(), np.random.default_rng(3), free, util, weighting="max")
+
+
+def test_collision_rate_threshold_counts_colliding_rollouts_as_zero_utility(grazing):
+    """The weighted alternative to Algorithm 1's line 7: the grazing path collides in some of
+    its rollouts; with a tolerated collision rate above that share it stays feasible, and its
+    expected utility (plain average of g = 1 for every free rollout) is the free share."""
+    sc, model, q0, controls = grazing
+    util = lambda s: np.ones(len(s))  # noqa: E731
+    args = (q0, controls, sc.robot.control_dt, 400, NoiseConfig())
+    strict = expected_utility(*args, np.random.default_rng(5), model.free, util, weighting="mean")
+    assert not strict.feasible
+    loose = expected_utility(*args, np.random.default_rng(5), model.free, util, weighting="mean",
+                             max_collision_rate=0.99)
+    assert loose.feasible and loose.rollouts_checked == 400
+    rate = loose.collided_rollouts / 400
+    assert 0 < rate < 0.99
+    assert loose.value == pytest.approx(1.0 - rate)
+    # a threshold just below the observed rate rules it out again
+    tight = expected_utility(*args, np.random.default_rng(5), model.free, util, weighting="mean",
+                             max_collision_rate=max(rate - 0.05, 0.0))
+    assert not tight.feasible and tight.value == 0.0
+    with pytest.raises(ValueError, match="max_collision_rate"):
+        expected_utility(*args, np.random.default_rng(5), model.free, util, max_collision_rate=1.0)

@@ -4,7 +4,10 @@ bound of §7.3 (eq. 18).
 k rollouts of the motion model the NoisyVelocityController executes (Euler integration of
 u_t + eps_t, eps truncated Gaussian); every intermediate state of every rollout is checked for
 collision with Drake (in batches); any colliding rollout makes the candidate unfeasible (the
-conservative rule of Algorithm 1, line 7). Otherwise the utility of each final state is
+conservative rule of Algorithm 1, line 7). With `max_collision_rate` > 0 the candidate is
+unfeasible only when more than that share of the k rollouts collide (the "weighted strategy"
+§7.2 names as the alternative): a colliding rollout then contributes g = 0, the pos(x) factor
+of its final state. Otherwise the utility of each final state is
 weighted by its probability, the product of the per-step densities computed in log space
 (hundreds of densities underflow) and normalised (weighting "probability", Algorithm 1 lines
 10-12), or averaged with equal weights (weighting "mean": the rollouts are already draws from
@@ -57,24 +60,29 @@ class ExpectedUtility:
 def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, noise: NoiseConfig,
                      rng: np.random.Generator, state_free: Callable[[np.ndarray], np.ndarray],
                      utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100,
-                     weighting: str = "probability") -> ExpectedUtility:
+                     weighting: str = "probability", max_collision_rate: float = 0.0) -> ExpectedUtility:
     """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,);
-    weighting "mean" or "probability" (see the module docstring)."""
+    weighting "mean" or "probability" (see the module docstring); max_collision_rate: the
+    share of colliding rollouts a feasible candidate may have (0: none, Algorithm 1)."""
     if weighting not in ("mean", "probability"):
         raise ValueError(f"weighting must be 'mean' or 'probability', got {weighting!r}")
+    if not 0.0 <= max_collision_rate < 1.0:
+        raise ValueError(f"max_collision_rate must be in [0, 1), got {max_collision_rate}")
     controls = np.asarray(controls, float)
     m = len(controls)
     sigma = noise_sigmas(noise)
     eps = sample_truncated_normal(rng, sigma, noise.beta, (k, m))
     states = rollout(q0, controls[None] + eps, dt)  # (k, m+1, 8)
+    allowed = int(math.floor(max_collision_rate * k + 1e-9))  # colliding rollouts tolerated
+    ok = np.ones(k, bool)
     checked = collided = 0
     for start in range(0, k, chunk):
         block = states[start:start + chunk, 1:]  # intermediate and final states
         free = state_free(block.reshape(-1, 8)).reshape(block.shape[:2])
         checked += len(block)
-        bad = int(np.count_nonzero(~free.all(axis=1)))
-        if bad:
-            collided += bad
+        ok[start:start + len(block)] = free.all(axis=1)
+        collided = int(np.count_nonzero(~ok[:start + len(block)]))
+        if collided > allowed:
             return ExpectedUtility(False, 0.0, k, checked, collided)
     if weighting == "probability":
         logp = truncated_normal_logpdf(eps, sigma, noise.beta).sum(axis=1)  # log prod_t p_t
@@ -83,6 +91,7 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     else:
         w = np.full(k, 1.0 / k)
     finals = states[:, -1]
-    g = np.asarray(utility(finals), float)
+    g = np.zeros(k)
+    g[ok] = np.asarray(utility(finals[ok]), float)  # pos(x) = 0 at a colliding rollout's end
     ess = float(1.0 / np.sum(w * w))
-    return ExpectedUtility(True, float(np.dot(w, g)), k, checked, 0, finals, g, w, ess, float(g.std()))
+    return ExpectedUtility(True, float(np.dot(w, g)), k, checked, collided, finals, g, w, ess, float(g.std()))

@@ -303,7 +303,7 @@ class RandomSamplingPlanner:
         return expected_utility(
             q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
             free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]),
-            weighting=p.eu_weighting)
+            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate)
 
     #: a believed start state in collision (the belief is uncertain; W_box is a conservative
     #: obstacle) may be left within this many control steps; the rest of the path is checked

@@ -4,7 +4,7 @@ import pytest
 from nbvs_drake.config import NoiseConfig, Scenario
 from nbvs_drake.motion import rollout, steer
 from nbvs_drake.planning.collision import CollisionModel
-from nbvs_drake.planning.expected_utility import expected_utility, sample_count_bound
+from nbvs_drake.planning.expected_utility import expected_utility, perturbed_starts, sample_count_bound
 
 
 def test_eq18_sample_bound():
@@ -113,3 +113,34 @@ def test_collision_rate_threshold_counts_colliding_rollouts_as_zero_utility(graz
     assert not tight.feasible and tight.value == 0.0
     with pytest.raises(ValueError, match="max_collision_rate"):
         expected_utility(*args, np.random.default_rng(5), model.free, util, max_collision_rate=1.0)
+
+
+def test_uncertain_start_spreads_the_rollouts():
+    """A belief no scan has corrected (heading sigma 0.3 rad, the spread of one ~100-control
+    plan): with exact controls the rollouts' final headings spread by that sigma, and a view
+    that needs the heading within 0.1 rad is worth about a quarter of its nominal value; with
+    no start covariance (or a zero one) the rollouts all end at the nominal state."""
+    from nbvs_drake.registration import Correction
+    q0 = np.array([1.0, 2.0, 0.3, 0, 0.3, 0, 0, 0])
+    xi = np.array([[0.1, -0.2, 0.4], [0.0, 0.0, 0.0]])
+    starts = perturbed_starts(q0, xi)
+    np.testing.assert_allclose(starts[0], Correction(*xi[0]).apply_state(q0), atol=1e-12)
+    np.testing.assert_allclose(starts[1], q0, atol=1e-12)
+    q0 = np.array([0.0, 0.0, 0.3, 0, 0.3, 0, 0, 0])  # at the origin the correction turns the base in place
+    controls = np.zeros((50, 7))
+    controls[:, 0] = 0.2  # drive 1 m
+    exact = NoiseConfig(sigma_v=0, sigma_w=0, sigma_arm=[0] * 5)
+    free = lambda q: np.ones(len(q), bool)  # noqa: E731
+    util = lambda s: (np.abs(s[:, 2] - 0.3) < 0.1).astype(float)  # noqa: E731
+    cov = np.diag([1e-4, 1e-4, 0.3 ** 2])
+    for known in (None, np.zeros((3, 3))):
+        eu = expected_utility(q0, controls, 0.1, 500, exact, np.random.default_rng(0), free, util,
+                              weighting="mean", start_cov=known)
+        assert eu.value == pytest.approx(1.0) and np.ptp(eu.final_states[:, 2]) < 1e-12
+    eu = expected_utility(q0, controls, 0.1, 500, exact, np.random.default_rng(0), free, util,
+                          weighting="mean", start_cov=cov)
+    assert 0.25 < eu.final_states[:, 2].std() < 0.33
+    assert 0.15 < eu.value < 0.4
+    # each rollout still executes the plan: 1 m along its own (perturbed) start heading
+    heading = eu.final_states[:, 2]
+    np.testing.assert_allclose(eu.final_states[:, :2], np.stack([np.cos(heading), np.sin(heading)], 1), atol=0.04)

@@ -157,3 +157,39 @@ def test_planner_with_expected_utility(kin, first_scan_map):
     assert eu["feasible"] and eu["k"] == 100 and eu["collided_rollouts"] == 0
     assert res.utility == pytest.approx(res.factors["du"], rel=1e-9)  # sigma -> 0: EU = DU
     assert res.stages["eu_feasible"] >= 1 and "expected_utility_s" in res.times
+
+
+def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin, first_scan_map):
+    """The mapper's pose_covariance (a scan that could not be registered leaves the belief
+    uncertain) reaches the EU: with exact controls the rollouts spread only through the start,
+    so the chosen plan's utilities vary and its report gives the start's sigmas."""
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.n_candidates = 600
+    sc.planner.utility = "eu"
+    sc.planner.eu_samples = 100
+    sc.planner.eu_weighting = "mean"
+    sc.planner.eu_max_collision_rate = 0.5
+    sc.noise.sigma_v = sc.noise.sigma_w = 0.0
+    pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
+    q0 = np.array(sc.robot.start)
+    sys_ = NBVSPlanner(sc, pl, q0)
+    ctx = sys_.CreateDefaultContext()
+    sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+    sys_.GetInputPort("pose_correction").FixValue(ctx, np.zeros(4))
+    sys_.GetInputPort("pose_covariance").FixValue(ctx, np.diag([1e-4, 1e-4, 0.2 ** 2]).reshape(-1))
+    sim = Simulator(sys_, ctx)
+    sim.AdvanceTo(0.05)
+    rep = sys_.GetOutputPort("report").Eval(sim.get_context())
+    assert rep["status"] == "ok" and rep["start_sigma"] == pytest.approx([0.01, 0.01, 0.2])
+    assert rep["factors"]["eu"]["g_std"] > 0 and rep["utility"] < rep["factors"]["du"]
+    # a zero covariance (the last scan registered) is an exact start: EU = DU
+    sys_ = NBVSPlanner(sc, pl, q0)
+    ctx2 = sys_.CreateDefaultContext()
+    sys_.GetInputPort("map").FixValue(ctx2, AbstractValue.Make(omap))
+    sys_.GetInputPort("pose_correction").FixValue(ctx2, np.zeros(4))
+    sys_.GetInputPort("pose_covariance").FixValue(ctx2, np.zeros(9))
+    sim = Simulator(sys_, ctx2)
+    sim.AdvanceTo(0.05)
+    rep = sys_.GetOutputPort("report").Eval(sim.get_context())
+    assert "start_sigma" not in rep and rep["utility"] == pytest.approx(rep["factors"]["du"], rel=1e-9)

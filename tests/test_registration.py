@@ -184,6 +184,7 @@ def test_mapper_registers_the_scan_and_publishes_the_correction(renderer):
     assert corr[0] == 2
     rep = mapper.GetOutputPort("scan_report").Eval(ctx).info
     assert rep["icp"]["applied"] and rep["register_s"] > 0
+    assert not np.any(mapper.GetOutputPort("pose_covariance").Eval(ctx))  # registered: belief reset
     # the mapper's result is the registration's (same prior draw: seed, 13, scan 2)
     cfg = RegistrationConfig()
     C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng([sc.seed, 13, 2]))
@@ -225,5 +226,8 @@ def test_mapper_skips_a_scan_it_cannot_register(renderer):
     assert m2.scan_count == 2 and rep["integrated"] is False and rep["icp"]["reason"] == "too_few_points"
     np.testing.assert_array_equal(m2.logodds, m1.logodds)
     assert list(mapper.GetOutputPort("pose_correction").Eval(ctx)) == [2, 0, 0, 0]
-    pending = ctx.get_discrete_state(2).get_value().reshape(3, 3)
-    assert pending[2, 2] > 0.01  # the heading variance of the plan carries over
+    pending = mapper.GetOutputPort("pose_covariance").Eval(ctx).reshape(3, 3)
+    np.testing.assert_array_equal(pending, ctx.get_discrete_state(2).get_value().reshape(3, 3))
+    assert pending[2, 2] > 0.01  # the heading variance of the plan carries over, for the planner too
+    np.testing.assert_allclose(pending, pending.T)
+    assert np.all(np.linalg.eigvalsh(pending) > 0)

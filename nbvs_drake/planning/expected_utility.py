@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from ..config import NoiseConfig
-from ..motion import noise_sigmas, rollout, sample_truncated_normal, truncated_normal_logpdf
+from ..motion import noise_sigmas, rollout, sample_truncated_normal, truncated_normal_logpdf, wrap_angle
 
 
 def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> int:
@@ -36,6 +36,23 @@ def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> in
     if not (0 < alpha < 1) or not (0 < eta * gamma < 1):
         raise ValueError(f"need 0 < alpha < 1 and 0 < eta*gamma < 1, got alpha={alpha}, eta*gamma={eta * gamma}")
     return int(math.ceil(math.log(alpha) / math.log(1.0 - eta * gamma) - 1e-12))
+
+
+#: start-pose variances below this (1 mm, 1 mrad squared) count as an exactly known start
+START_VAR_EPS = 1e-6
+
+
+def perturbed_starts(q0: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """States (n, 8): q0's base pose moved by each planar correction xi = (dx, dy, dyaw)
+    (p' = Rz(dyaw) p + (dx, dy), heading + dyaw; `registration.Correction.apply_state`)."""
+    q0 = np.asarray(q0, float)
+    xi = np.atleast_2d(np.asarray(xi, float))
+    c, s = np.cos(xi[:, 2]), np.sin(xi[:, 2])
+    out = np.tile(q0, (len(xi), 1))
+    out[:, 0] = c * q0[0] - s * q0[1] + xi[:, 0]
+    out[:, 1] = s * q0[0] + c * q0[1] + xi[:, 1]
+    out[:, 2] = wrap_angle(q0[2] + xi[:, 2])
+    return out
 
 
 @dc.dataclass
@@ -60,10 +77,16 @@ class ExpectedUtility:
 def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, noise: NoiseConfig,
                      rng: np.random.Generator, state_free: Callable[[np.ndarray], np.ndarray],
                      utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100,
-                     weighting: str = "probability", max_collision_rate: float = 0.0) -> ExpectedUtility:
+                     weighting: str = "probability", max_collision_rate: float = 0.0,
+                     start_cov: np.ndarray | None = None) -> ExpectedUtility:
     """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,);
     weighting "mean" or "probability" (see the module docstring); max_collision_rate: the
-    share of colliding rollouts a feasible candidate may have (0: none, Algorithm 1)."""
+    share of colliding rollouts a feasible candidate may have (0: none, Algorithm 1);
+    start_cov: covariance (3, 3) of the believed start pose's planar error (dx, dy, dyaw), as
+    `registration.motion_prior` gives it: each rollout then starts from the belief moved by a
+    draw of that error (truncated at beta sigma like the control noise), so a belief that no
+    scan has corrected since the last plan spreads the rollouts' final states accordingly.
+    None or zero: Algorithm 1's exactly known start x_c."""
     if weighting not in ("mean", "probability"):
         raise ValueError(f"weighting must be 'mean' or 'probability', got {weighting!r}")
     if not 0.0 <= max_collision_rate < 1.0:
@@ -72,6 +95,11 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     m = len(controls)
     sigma = noise_sigmas(noise)
     eps = sample_truncated_normal(rng, sigma, noise.beta, (k, m))
+    z = None
+    if start_cov is not None and np.any(np.diag(np.asarray(start_cov, float)) > START_VAR_EPS):
+        L = np.linalg.cholesky(np.asarray(start_cov, float) + START_VAR_EPS * np.eye(3))
+        z = sample_truncated_normal(rng, np.ones(3), noise.beta, (k,))  # (k, 3) standard draws
+        q0 = perturbed_starts(q0, z @ L.T)
     states = rollout(q0, controls[None] + eps, dt)  # (k, m+1, 8)
     allowed = int(math.floor(max_collision_rate * k + 1e-9))  # colliding rollouts tolerated
     ok = np.ones(k, bool)
@@ -86,6 +114,8 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
             return ExpectedUtility(False, 0.0, k, checked, collided)
     if weighting == "probability":
         logp = truncated_normal_logpdf(eps, sigma, noise.beta).sum(axis=1)  # log prod_t p_t
+        if z is not None:  # times the start's density
+            logp = logp + truncated_normal_logpdf(z, np.ones(3), noise.beta)
         w = np.exp(logp - logp.max())
         w /= w.sum()
     else:

@@ -44,7 +44,8 @@ class ORTPlanner(RandomSamplingPlanner):
             extend(tree, next(targets), p.tree_step, w, self.sc.robot, self.tree_path_free, self.kin.clip_arm)
         return tree, it
 
-    def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator) -> PlanResult:
+    def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator,
+             start_cov: np.ndarray | None = None) -> PlanResult:  # start_cov: no EU here
         p = self.sc.planner
         times, stages = {}, {}
         stages.update(self.update_obstacles(omap))

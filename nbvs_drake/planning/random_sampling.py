@@ -198,7 +198,11 @@ class RandomSamplingPlanner:
         self._obstacles_for = omap.scan_count
         return {"obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t}
 
-    def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator) -> PlanResult:
+    def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator,
+             start_cov: np.ndarray | None = None) -> PlanResult:
+        """The NBVS from the believed state q_current. start_cov (3, 3): the belief's planar
+        pose covariance (zero after a registered scan); the expected utility's rollouts start
+        from that spread."""
         p = self.sc.planner
         times, stages = {}, {}
         stages.update(self.update_obstacles(omap))
@@ -258,7 +262,7 @@ class RandomSamplingPlanner:
             if p.utility == "eu":
                 te = time.perf_counter()
                 for r in reachable:
-                    eu = self.expected_utility(omap, q_current, r, un_total, rng)
+                    eu = self.expected_utility(omap, q_current, r, un_total, rng, start_cov)
                     r.factors["eu"] = eu.to_json()
                     r.utility = eu.value
                     n_eu_feasible += eu.feasible
@@ -290,7 +294,7 @@ class RandomSamplingPlanner:
         return reg * self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total) * dist
 
     def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,
-                         rng: np.random.Generator):
+                         rng: np.random.Generator, start_cov: np.ndarray | None = None):
         """Algorithm 1 for one candidate with its control sequence."""
         p = self.sc.planner
         skip = self.escape_prefix(cand.states) or 0  # the nominal path's escape from a colliding start
@@ -303,7 +307,7 @@ class RandomSamplingPlanner:
         return expected_utility(
             q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
             free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]),
-            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate)
+            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=start_cov)
 
     #: a believed start state in collision (the belief is uncertain; W_box is a conservative
     #: obstacle) may be left within this many control steps; the rest of the path is checked

@@ -46,6 +46,9 @@ class NBVSPlanner(LeafSystem):
     Input ports:
       - map (abstract OccupancyMap).
       - pose_correction (4): [scan index, dx, dy, dyaw] from the mapper's registration.
+      - pose_covariance (9, optional): the belief's planar pose covariance (3x3 row-major)
+        from the mapper; the expected utility's rollouts start from that spread. Unconnected:
+        the belief is taken as exact.
     Output ports:
       - controls (abstract ControlSequence): the current plan tau (plan_id 0: none yet).
       - believed_state (8): where the robot believes it is.
@@ -63,6 +66,7 @@ class NBVSPlanner(LeafSystem):
         mem = PlannerMemory(ControlSequence.empty(q0, dt), q0)
         self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
         self._corr = self.DeclareVectorInputPort("pose_correction", 4)
+        self._cov = self.DeclareVectorInputPort("pose_covariance", 9)
         self._mem = self.DeclareAbstractState(AbstractValue.Make(mem))
         self.DeclareAbstractOutputPort("controls", lambda: AbstractValue.Make(mem.controls), self._calc_controls,
                                        {self.abstract_state_ticket(self._mem)})
@@ -98,8 +102,11 @@ class NBVSPlanner(LeafSystem):
         else:
             rng = np.random.default_rng([self.sc.seed, 1, k])
             t = time.perf_counter()
-            res: PlanResult = self.planner.plan(omap, believed, rng)
+            cov = self._cov.Eval(context).reshape(3, 3) if self._cov.HasValue(context) else None
+            res: PlanResult = self.planner.plan(omap, believed, rng, start_cov=cov)
             rep = {"scan": k, **res.to_json(), "plan_s": time.perf_counter() - t, **states}
+            if cov is not None and np.any(cov != 0):  # the belief's spread the plan started from
+                rep["start_sigma"] = [round(float(v), 5) for v in np.sqrt(np.maximum(np.diag(cov), 0.0))]
             info = res.factors.get("sur", res.factors.get("info", float("inf")))
             if res.status != "ok":
                 reason = "no_valid_candidate" if res.status == "no_candidate" else "no_path"

@@ -94,6 +94,9 @@ class OctreeMapper(LeafSystem):
         registration result.
       - pose_correction (4): [scan index, dx, dy, dyaw] of the last scan (identity when the
         registration was rejected or is off).
+      - pose_covariance (9): the believed pose's planar error covariance (dx, dy, dyaw; 3x3
+        row-major) since the last registered scan: zero after a registration, the executed
+        plans' motion-model spread summed while registrations fail.
     State: abstract map, registration model and report; discrete [last plan scanned],
     correction (4), pending pose covariance since the last registration (3x3).
     """
@@ -123,6 +126,7 @@ class OctreeMapper(LeafSystem):
         self.DeclareStateOutputPort("map", self._map)
         self.DeclareStateOutputPort("scan_report", self._rep)
         self.DeclareStateOutputPort("pose_correction", self._corr)
+        self.DeclareStateOutputPort("pose_covariance", self._pending)
         self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
 
     def _update(self, context, state):

@@ -96,7 +96,8 @@ class OctreeMapper(LeafSystem):
         registration was rejected or is off).
       - pose_covariance (9): the believed pose's planar error covariance (dx, dy, dyaw; 3x3
         row-major) since the last registered scan: zero after a registration, the executed
-        plans' motion-model spread summed while registrations fail.
+        plans' motion-model spread summed while registrations fail (kept with
+        mission.relocalization icp only; zero with none).
     State: abstract map, registration model and report; discrete [last plan scanned],
     correction (4), pending pose covariance since the last registration (3x3).
     """

@@ -114,6 +114,13 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     def stage_total(key):
         return float(sum(r["plan"].get("times", {}).get(key, 0.0) for r in records))
 
+    collision = None
+    if halted:  # the trajectory that collided never reached a scan: keep it here
+        kplant = md.systems["kinematic_plant"]
+        q_stop = kplant.GetOutputPort("state").Eval(kplant.GetMyContextFromRoot(ctx))
+        collision = {"trajectory": executed, "t_sim": round(halted["t"], 3),
+                     "true_state": [round(float(v), 6) for v in q_stop],
+                     "executed_path": rec.unfinished_path()}
     summary = {
         "scenario": sc.name,
         "seed": sc.seed,
@@ -127,6 +134,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "executed_trajectories": executed,
         "collision_rate": collided / executed if executed else 0.0,
         "stop_reason": stop_reason,
+        "collision": collision,
         "distance": float(sum(p["factors"]["rho"] for p in plans)),
         "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
         "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
@@ -151,7 +159,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     # paths.png and replay.html after summary.json: a failure there cannot lose the results
     from .replay import write_visual_outputs
     vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
-                               verbose=verbose)
+                               verbose=verbose, collision=collision)
     summary["times_s"]["visual_outputs"] = vis["seconds"]
     if vis["errors"]:
         summary["visual_output_errors"] = vis["errors"]

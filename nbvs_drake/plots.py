@@ -43,14 +43,16 @@ def _xy(states):
     return a[:, :2]
 
 
-def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_error: float = 0.002):
+def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_error: float = 0.002,
+               collision: dict | None = None):
     """Top view (x, y) of a run, after seed 000 Fig. 17: the table and W_box, per iteration
     the planned base path (dashed; the plan made after scan k) and the executed true path
     (solid; the motion that ended at scan k + 1) in one colour, the true base pose at each
     scan (numbered, with its heading), and the believed (dead-reckoned, x) and corrected
     (after re-localisation, +) positions where the records have them and they lie more than
     `min_error` (m) from the true one. Records without path fields still give the numbered
-    scan positions."""
+    scan positions. `collision` (summary.json's): the colliding trajectory's executed path up
+    to the collision, in red, and the true pose where it stopped."""
     import numpy as np
     from matplotlib.patches import Rectangle
 
@@ -108,6 +110,14 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
             ax.plot(cor[0], cor[1], "+", color="darkorange", ms=9, mew=1.8, zorder=6,
                     label=once("cor", "corrected (ICP)"))
             pts.append(np.array([cor[:2]]))
+    hit = _xy((collision or {}).get("executed_path"))
+    if hit is not None:
+        ax.plot(hit[:, 0], hit[:, 1], "-", color="red", lw=2.0, zorder=6, label="executed until the collision")
+        pts.append(hit)
+    stop = (collision or {}).get("true_state")
+    if stop:
+        ax.plot(stop[0], stop[1], "X", color="red", ms=11, mec="black", zorder=9, label="collision (true pose)")
+        pts.append(np.array([stop[:2]]))
     allp = np.concatenate(pts + [np.array([[-tx / 2, -ty / 2], [tx / 2, ty / 2]])])
     pad = 0.3
     x0, x1 = allp[:, 0].min() - pad, allp[:, 0].max() + pad

@@ -440,7 +440,7 @@ def image_colours(png_path) -> dict:
 # ---- the visual outputs of a run ----------------------------------------------------------
 
 def write_visual_outputs(out_dir, sc, records: list[dict], maps=None, obj_mesh_path=None,
-                         verbose: bool = False) -> dict:
+                         verbose: bool = False, collision: dict | None = None) -> dict:
     """paths.png (top view of planned vs executed paths) and replay.html in `out_dir`. Each
     is written on its own: a failure is reported (returned under "errors" and printed), never
     raised, so that it cannot cost the run its other results. Returns
@@ -452,7 +452,8 @@ def write_visual_outputs(out_dir, sc, records: list[dict], maps=None, obj_mesh_p
     t0 = time.perf_counter()
     errors, info = [], None
     try:
-        plot_paths(records, out / "paths.png", sc.scene, title=f"{sc.name} (seed {sc.seed}): paths, top view")
+        plot_paths(records, out / "paths.png", sc.scene, title=f"{sc.name} (seed {sc.seed}): paths, top view",
+                   collision=collision)
     except Exception as e:  # noqa: BLE001 - a plot must not lose the run
         errors.append(f"paths.png: {type(e).__name__}: {e}")
         if verbose:

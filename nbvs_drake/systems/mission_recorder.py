@@ -79,6 +79,11 @@ class MissionRecorder(LeafSystem):
     def written(self) -> int:
         return len(self.log.records)
 
+    def unfinished_path(self) -> list[list[float]]:
+        """The true states sampled so far of the motion in progress (no scan has ended it yet):
+        when a collision stops the run, the colliding trajectory up to the collision."""
+        return self._path[::2] + self._path[-1:] if self._path else []
+
     def _publish(self, context):
         status = self._status.Eval(context)
         if status[2] < 0.5:  # moving: sample the executed path (a sink's side effect, as the log)
@@ -108,7 +113,7 @@ class MissionRecorder(LeafSystem):
             "true_state": [round(float(v), 6) for v in self._true.Eval(context)],
             "believed_state": plan.get("believed_state"),
             "corrected_state": plan.get("corrected_state"),
-            "executed_path": self._path[::2] + self._path[-1:] if self._path else [],
+            "executed_path": self.unfinished_path(),
             "collided_trajectories": int(coll[0]), "executed_trajectories": int(coll[1]),
             "coverage_s": t_cov,
             "wall_s": now - self._t_last,

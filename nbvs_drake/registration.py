@@ -59,6 +59,25 @@ def rot_z(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+#: pose variances below this (1 mm, 1 mrad squared): the pose is known exactly (odometry
+#: without noise, a belief the last scan's registration fixed)
+EXACT_POSE_VAR = 1e-6
+
+
+def apply_corrections(q: np.ndarray, xi) -> np.ndarray:
+    """States (n, 8): the state q with its base pose moved by each planar correction
+    xi = (dx, dy, dyaw) in (n, 3): p' = Rz(dyaw) p + (dx, dy), heading + dyaw, arm unchanged
+    (`Correction.apply_state` for one)."""
+    q = np.asarray(q, float)
+    xi = np.atleast_2d(np.asarray(xi, float))
+    c, s = np.cos(xi[:, 2]), np.sin(xi[:, 2])
+    out = np.tile(q, (len(xi), 1))
+    out[:, 0] = c * q[0] - s * q[1] + xi[:, 0]
+    out[:, 1] = s * q[0] + c * q[1] + xi[:, 1]
+    out[:, 2] = wrap_angle(q[2] + xi[:, 2])
+    return out
+
+
 @dc.dataclass(frozen=True)
 class Correction:
     """Planar rigid correction: p' = Rz(dyaw) p + (dx, dy, 0)."""
@@ -81,13 +100,7 @@ class Correction:
 
     def apply_state(self, q: np.ndarray) -> np.ndarray:
         """The robot state whose base pose is T times the base pose of q (arm unchanged)."""
-        q = np.array(q, float)
-        c, s = np.cos(self.dyaw), np.sin(self.dyaw)
-        x, y = q[0], q[1]
-        q[0] = c * x - s * y + self.dx
-        q[1] = s * x + c * y + self.dy
-        q[2] = float(wrap_angle(q[2] + self.dyaw))
-        return q
+        return apply_corrections(q, [[self.dx, self.dy, self.dyaw]])[0]
 
     def compose(self, other: "Correction") -> "Correction":
         """self after other."""

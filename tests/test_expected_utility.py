@@ -4,7 +4,7 @@ import pytest
 from nbvs_drake.config import NoiseConfig, Scenario
 from nbvs_drake.motion import rollout, steer
 from nbvs_drake.planning.collision import CollisionModel
-from nbvs_drake.planning.expected_utility import expected_utility, perturbed_starts, sample_count_bound
+from nbvs_drake.planning.expected_utility import expected_utility, sample_count_bound
 
 
 def test_eq18_sample_bound():
@@ -120,10 +120,10 @@ def test_uncertain_start_spreads_the_rollouts():
     plan): with exact controls the rollouts' final headings spread by that sigma, and a view
     that needs the heading within 0.1 rad is worth about a quarter of its nominal value; with
     no start covariance (or a zero one) the rollouts all end at the nominal state."""
-    from nbvs_drake.registration import Correction
+    from nbvs_drake.registration import Correction, apply_corrections
     q0 = np.array([1.0, 2.0, 0.3, 0, 0.3, 0, 0, 0])
     xi = np.array([[0.1, -0.2, 0.4], [0.0, 0.0, 0.0]])
-    starts = perturbed_starts(q0, xi)
+    starts = apply_corrections(q0, xi)
     np.testing.assert_allclose(starts[0], Correction(*xi[0]).apply_state(q0), atol=1e-12)
     np.testing.assert_allclose(starts[1], q0, atol=1e-12)
     q0 = np.array([0.0, 0.0, 0.3, 0, 0.3, 0, 0, 0])  # at the origin the correction turns the base in place

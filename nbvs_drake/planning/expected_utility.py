@@ -26,7 +26,8 @@ from typing import Callable
 import numpy as np
 
 from ..config import NoiseConfig
-from ..motion import noise_sigmas, rollout, sample_truncated_normal, truncated_normal_logpdf, wrap_angle
+from ..motion import noise_sigmas, rollout, sample_truncated_normal, truncated_normal_logpdf
+from ..registration import EXACT_POSE_VAR, apply_corrections
 
 
 def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> int:
@@ -36,23 +37,6 @@ def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> in
     if not (0 < alpha < 1) or not (0 < eta * gamma < 1):
         raise ValueError(f"need 0 < alpha < 1 and 0 < eta*gamma < 1, got alpha={alpha}, eta*gamma={eta * gamma}")
     return int(math.ceil(math.log(alpha) / math.log(1.0 - eta * gamma) - 1e-12))
-
-
-#: start-pose variances below this (1 mm, 1 mrad squared) count as an exactly known start
-START_VAR_EPS = 1e-6
-
-
-def perturbed_starts(q0: np.ndarray, xi: np.ndarray) -> np.ndarray:
-    """States (n, 8): q0's base pose moved by each planar correction xi = (dx, dy, dyaw)
-    (p' = Rz(dyaw) p + (dx, dy), heading + dyaw; `registration.Correction.apply_state`)."""
-    q0 = np.asarray(q0, float)
-    xi = np.atleast_2d(np.asarray(xi, float))
-    c, s = np.cos(xi[:, 2]), np.sin(xi[:, 2])
-    out = np.tile(q0, (len(xi), 1))
-    out[:, 0] = c * q0[0] - s * q0[1] + xi[:, 0]
-    out[:, 1] = s * q0[0] + c * q0[1] + xi[:, 1]
-    out[:, 2] = wrap_angle(q0[2] + xi[:, 2])
-    return out
 
 
 @dc.dataclass
@@ -96,10 +80,10 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     sigma = noise_sigmas(noise)
     eps = sample_truncated_normal(rng, sigma, noise.beta, (k, m))
     z = None
-    if start_cov is not None and np.any(np.diag(np.asarray(start_cov, float)) > START_VAR_EPS):
-        L = np.linalg.cholesky(np.asarray(start_cov, float) + START_VAR_EPS * np.eye(3))
+    if start_cov is not None and np.any(np.diag(np.asarray(start_cov, float)) > EXACT_POSE_VAR):
+        L = np.linalg.cholesky(np.asarray(start_cov, float) + EXACT_POSE_VAR * np.eye(3))
         z = sample_truncated_normal(rng, np.ones(3), noise.beta, (k,))  # (k, 3) standard draws
-        q0 = perturbed_starts(q0, z @ L.T)
+        q0 = apply_corrections(q0, z @ L.T)
     states = rollout(q0, controls[None] + eps, dt)  # (k, m+1, 8)
     allowed = int(math.floor(max_collision_rate * k + 1e-9))  # colliding rollouts tolerated
     ok = np.ones(k, bool)

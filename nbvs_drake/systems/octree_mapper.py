@@ -14,14 +14,10 @@ from pydrake.systems.framework import LeafSystem
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..motion import ControlSequence
-from ..registration import (Correction, KnownSolids, RegistrationConfig, RegistrationModel, ScanView,
-                            environment_model, motion_prior, region_mask, register_scan)
+from ..registration import (EXACT_POSE_VAR, Correction, KnownSolids, RegistrationConfig, RegistrationModel,
+                            ScanView, environment_model, motion_prior, region_mask, register_scan)
 from ..sensor import axial_noise_sigma, ray_directions
 from ..config import resolve_sensor
-
-
-#: prior variances below this (1 mm, 1 mrad squared): the odometry is exact, no registration
-EXACT_ODOMETRY_VAR = 1e-6
 
 
 class ScanReport:
@@ -153,7 +149,7 @@ class OctreeMapper(LeafSystem):
             tau: ControlSequence = self._tau.Eval(context)
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
                                            np.random.default_rng([self.sc.seed, 13, k]))
-            if np.any(np.diag(prior) > EXACT_ODOMETRY_VAR):  # else odometry is exact: nothing to correct
+            if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], model, prior, self.reg_cfg,
                                     free_at=functools.partial(omap.free_hits,
                                                               table_clearance=self.sc.mapper.table_clearance),

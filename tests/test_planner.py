@@ -104,12 +104,14 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "max_scans"
 
 
-def _planner_system_after(sc, planner, omap, correction):
+def _planner_system_after(sc, planner, omap, correction, covariance=None):
     q0 = np.array(sc.robot.start)
     sys_ = NBVSPlanner(sc, planner, q0)
     ctx = sys_.CreateDefaultContext()
     sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
     sys_.GetInputPort("pose_correction").FixValue(ctx, np.asarray(correction, float))
+    if covariance is not None:
+        sys_.GetInputPort("pose_covariance").FixValue(ctx, np.asarray(covariance, float).reshape(-1))
     sim = Simulator(sys_, ctx)
     sim.AdvanceTo(0.05)
     return sys_, sim.get_context(), q0
@@ -172,24 +174,11 @@ def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin
     sc.planner.eu_max_collision_rate = 0.5
     sc.noise.sigma_v = sc.noise.sigma_w = 0.0
     pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
-    q0 = np.array(sc.robot.start)
-    sys_ = NBVSPlanner(sc, pl, q0)
-    ctx = sys_.CreateDefaultContext()
-    sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
-    sys_.GetInputPort("pose_correction").FixValue(ctx, np.zeros(4))
-    sys_.GetInputPort("pose_covariance").FixValue(ctx, np.diag([1e-4, 1e-4, 0.2 ** 2]).reshape(-1))
-    sim = Simulator(sys_, ctx)
-    sim.AdvanceTo(0.05)
-    rep = sys_.GetOutputPort("report").Eval(sim.get_context())
+    sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4), np.diag([1e-4, 1e-4, 0.2 ** 2]))
+    rep = sys_.GetOutputPort("report").Eval(ctx)
     assert rep["status"] == "ok" and rep["start_sigma"] == pytest.approx([0.01, 0.01, 0.2])
     assert rep["factors"]["eu"]["g_std"] > 0 and rep["utility"] < rep["factors"]["du"]
     # a zero covariance (the last scan registered) is an exact start: EU = DU
-    sys_ = NBVSPlanner(sc, pl, q0)
-    ctx2 = sys_.CreateDefaultContext()
-    sys_.GetInputPort("map").FixValue(ctx2, AbstractValue.Make(omap))
-    sys_.GetInputPort("pose_correction").FixValue(ctx2, np.zeros(4))
-    sys_.GetInputPort("pose_covariance").FixValue(ctx2, np.zeros(9))
-    sim = Simulator(sys_, ctx2)
-    sim.AdvanceTo(0.05)
-    rep = sys_.GetOutputPort("report").Eval(sim.get_context())
+    sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4), np.zeros((3, 3)))
+    rep = sys_.GetOutputPort("report").Eval(ctx)
     assert "start_sigma" not in rep and rep["utility"] == pytest.approx(rep["factors"]["du"], rel=1e-9)

@@ -8,7 +8,9 @@ unknown voxels on the surface of the unknown region are drawn: the others are hi
 them), the candidate views the planner kept (camera positions coloured by utility rank,
 cyan to magenta, optical axes as short segments), the chosen view (red sphere and axis) and
 the planned path (red: base on the floor and camera). The executed base paths stay drawn as
-a green trail. Every overlay is a Meshcat object whose "visible" property is switched in the
+a green trail. A run stopped by a collision ends with the robot moving along the colliding
+trajectory's executed part (a dark red trail) to the pose where it collided, marked by a red
+cross on the floor. Every overlay is a Meshcat object whose "visible" property is switched in the
 recording. Motions are replayed `speedup` times faster than simulated (at most
 `max_motion_s` each); the robot waits while a map and a plan are shown.
 
@@ -34,6 +36,7 @@ OCCUPIED_RGBA = (0.1, 0.3, 1.0, 1.0)
 UNKNOWN_POINT_SCALE = 0.4
 PLAN_RGBA = (0.9, 0.1, 0.1, 1.0)
 TRAIL_RGBA = (0.05, 0.6, 0.2, 1.0)
+COLLISION_RGBA = (0.55, 0.0, 0.0, 1.0)
 GOAL_RGBA = (0.9, 0.05, 0.05, 1.0)
 CANDIDATE_AXIS_RGBA = (0.25, 0.25, 0.3, 1.0)
 WBOX_RGBA = (0.3, 0.3, 0.3, 1.0)
@@ -215,11 +218,13 @@ def _robot_visualizer(sc, meshcat, obj_mesh_path):
 def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap] | None,
                       obj_mesh_path=None, *, fps: float = 12.0, hold_s: float = 1.0,
                       plan_hold_s: float = 1.2, max_motion_s: float = 4.0, speedup: float = 2.5,
-                      meshcat=None) -> dict:
+                      meshcat=None, collision: dict | None = None) -> dict:
     """Writes the recording of a run to `out_path` (replay.html). `records` are the
     iterations.jsonl records; `maps[i]` the map after scan i+1 (None or shorter: the scans
     without a map show no voxels). The fields of the paths are optional: without
-    `executed_path` the robot jumps to the next scan's true state. Returns sizes and times."""
+    `executed_path` the robot jumps to the next scan's true state. `collision` (summary.json's,
+    None when nothing collided): the motion after the last scan that ended in a collision.
+    Returns sizes and times."""
     from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
 
     from .robot import RobotKinematics
@@ -265,6 +270,20 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
                             3.0, _rgba(TRAIL_RGBA))
             toggled.append(f"{ROOT}/trail/{i + 1}")
 
+    hit = _states((collision or {}).get("executed_path"))
+    q_hit = _states([collision["true_state"]])[0] if (collision or {}).get("true_state") else None
+    if len(hit) >= 2:
+        meshcat.SetLine(f"{ROOT}/collision/trail", np.c_[hit[:, :2], np.full(len(hit), 0.014)].T.copy(),
+                        4.0, _rgba(COLLISION_RGBA))
+    if q_hit is not None:
+        d = 0.09 * np.array([[1, 1], [1, -1]]) / np.sqrt(2)
+        c = np.r_[q_hit[:2], 0.016]
+        starts = np.array([c - np.r_[d[0], 0], c - np.r_[d[1], 0]]).T
+        ends = np.array([c + np.r_[d[0], 0], c + np.r_[d[1], 0]]).T
+        meshcat.SetLineSegments(f"{ROOT}/collision/cross", starts.copy(), ends.copy(), 5.0, _rgba(PLAN_RGBA))
+    if len(hit) >= 2 or q_hit is not None:
+        toggled.append(f"{ROOT}/collision")
+
     meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
     dt_frame = 1.0 / fps
     shown: dict[str, list] = {p: [] for p in toggled}  # path -> [(time, visible)]
@@ -302,6 +321,18 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
         if q_true is not None:
             pose(q_true, t)  # keyframe: the robot waits until the next motion starts
         q_prev = q_true
+    if len(hit) >= 2 or q_hit is not None:  # the colliding motion, then the robot stays where it hit
+        if len(hit) >= 2:
+            dur = float(np.clip(len(hit) * dt_ctrl / speedup, 1.0, max_motion_s))
+            n = max(round(dur * fps), 2)
+            for j, q in enumerate(_resample(hit, n)):
+                pose(q, t + j * dt_frame)
+                n_frames += 1
+            t += n * dt_frame
+        q_prev = q_hit if q_hit is not None else hit[-1]
+        pose(q_prev, t)
+        n_frames += 1
+        show(f"{ROOT}/collision", t, True)
     t += hold_s
     if q_prev is not None:
         pose(q_prev, t)
@@ -330,7 +361,8 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     tmp.replace(out_path)
     info = {"bytes": out_path.stat().st_size, "duration_s": round(t, 2), "robot_frames": n_frames,
             "maps": len(n_voxels), "unknown_points": int(sum(u for u, _ in n_voxels)),
-            "occupied_points": int(sum(o for _, o in n_voxels)), "seconds": time.perf_counter() - t0}
+            "occupied_points": int(sum(o for _, o in n_voxels)), "collision_shown": len(hit) >= 2 or q_hit is not None,
+            "seconds": time.perf_counter() - t0}
     tmpdir.cleanup()
     if own:
         meshcat.Delete()
@@ -461,7 +493,7 @@ def write_visual_outputs(out_dir, sc, records: list[dict], maps=None, obj_mesh_p
     if obj_mesh_path is not None and not Path(obj_mesh_path).is_file():
         obj_mesh_path = None
     try:
-        info = write_replay_html(out / "replay.html", sc, records, maps, obj_mesh_path)
+        info = write_replay_html(out / "replay.html", sc, records, maps, obj_mesh_path, collision=collision)
     except Exception as e:  # noqa: BLE001
         errors.append(f"replay.html: {type(e).__name__}: {e}")
         if verbose:

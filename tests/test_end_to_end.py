@@ -139,7 +139,7 @@ def test_a_collision_stops_the_run_and_keeps_the_colliding_trajectory(tmp_path):
     """Arm noise far beyond Table 4 (sigma 3 rad/s per joint) makes the arm flail into the
     robot or the floor within the first trajectory. The run stops (on_collision: stop), every
     finished iteration is in iterations.jsonl, and the colliding trajectory, which no scan
-    ended, is kept in summary.json (up to the collision) and drawn in paths.png."""
+    ended, is kept in summary.json (up to the collision) and drawn in paths.png and replay.html."""
     import numpy as np
     from nbvs_drake import DIAGRAMS_DIR
     sc = load_scenario(DIAGRAMS_DIR / "default.yaml")
@@ -158,3 +158,6 @@ def test_a_collision_stops_the_run_and_keeps_the_colliding_trajectory(tmp_path):
     assert len(recs) == s["scans"] == c["trajectory"]  # the scans before the colliding motion
     assert json.loads((tmp_path / "summary.json").read_text())["collision"] == c
     assert (tmp_path / "paths.png").stat().st_size > 0 and "visual_output_errors" not in s
+    from test_replay import _decoded_commands
+    decoded = _decoded_commands((tmp_path / "replay.html").read_text())
+    assert "/nbvs/collision/trail" in decoded and "/nbvs/collision/cross" in decoded

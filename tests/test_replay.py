@@ -50,6 +50,7 @@ def test_replay_html_is_self_contained(live_run):
     for path in ("/drake/robot", "/nbvs/map/1/unknown", "/nbvs/map/3/occupied", "/nbvs/plan/1", "/nbvs/wbox"):
         assert path in decoded, path
     assert "set_animation" in decoded and "visible" in decoded
+    assert "/nbvs/collision" not in decoded  # nothing collided
 
 
 def _decoded_commands(html: str) -> str:

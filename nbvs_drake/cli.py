@@ -12,7 +12,7 @@ from .errors import NbvsError
 def _cmd_reconstruct(args):
     from .config import load_scenario
     from .mission import run_mission
-    sc = load_scenario(args.scenario, seed=args.seed)
+    sc = load_scenario(args.scenario, seed=args.seed, settings=args.set)
     out = Path(args.out or f"results/{sc.name}")
     meshcat = None
     if args.meshcat:
@@ -46,6 +46,9 @@ def main(argv=None) -> int:
     r.add_argument("--scenario", default=None, help="scenario YAML (default: diagrams/default.yaml)")
     r.add_argument("--out", default=None, help="output folder (default: results/<scenario name>)")
     r.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
+    r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one scenario field, e.g. --set noise.sigma_w=0.14 --set planner.top_k=50 "
+                        "(YAML value; repeatable; recorded in the run's scenario.yaml)")
     r.add_argument("--quiet", action="store_true")
     r.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (robot, map voxels, candidates, plan); prints the URL")

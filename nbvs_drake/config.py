@@ -198,8 +198,10 @@ class Scenario:
 # --------------------------------------------------------------------------------------
 
 
-def load_scenario(path=None, *, seed=None) -> "Scenario":
-    """Loads and validates a scenario YAML (``None``: the built-in default scenario)."""
+def load_scenario(path=None, *, seed=None, settings=()) -> "Scenario":
+    """Loads and validates a scenario YAML (``None``: the built-in default scenario).
+    `settings`: overrides "section.field=value" (YAML values, e.g. "noise.sigma_w=0.14",
+    "planner.top_k=50", "noise.sigma_arm=[0.01, 0.01, 0, 0, 0]"), applied in order."""
     from pydrake.common.yaml import yaml_load_typed
 
     if path is None:
@@ -221,8 +223,29 @@ def load_scenario(path=None, *, seed=None) -> "Scenario":
         scenario.base_dir = str(path.resolve().parent)
     if seed is not None:
         scenario.seed = int(seed)
+    for setting in settings:
+        scenario = apply_setting(scenario, setting)
     validate(scenario)
     return scenario
+
+
+def apply_setting(scenario: "Scenario", setting: str) -> "Scenario":
+    """A copy of `scenario` with one "dotted.key=value" setting applied (the value is YAML),
+    loaded through the same typed schema as the file, so unknown keys and wrong types are
+    refused with a ScenarioError naming the setting."""
+    from pydrake.common.yaml import yaml_load_typed
+
+    key, sep, value = setting.partition("=")
+    parts = [k.strip() for k in key.split(".")]
+    value = value.strip()
+    if not sep or not all(parts) or not value or "\n" in value:
+        raise ScenarioError(f"setting {setting!r}: expected section.field=value, e.g. noise.sigma_w=0.14")
+    text = "".join(f"{'  ' * i}{k}:\n" for i, k in enumerate(parts[:-1]))
+    text += f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}\n"
+    try:
+        return yaml_load_typed(schema=Scenario, data=text, defaults=scenario)
+    except Exception as e:  # noqa: BLE001 - yaml_load_typed raises RuntimeError / ValueError / TypeError
+        raise ScenarioError(f"setting {setting!r}: {' '.join(str(e).split())}") from None
 
 
 def resolve_sensor(sensor: SensorConfig) -> SensorConfig:

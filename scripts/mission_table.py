@@ -4,8 +4,11 @@
     .venv/bin/python scripts/mission_table.py --scenarios teapot_du teapot_du_mu teapot_eu_mu \\
         --seeds 1 2 3 4 5 --out results/table [--jobs 2]
     .venv/bin/python scripts/mission_table.py --collect results/table   # table of finished runs
+    .venv/bin/python scripts/mission_table.py --scenarios teapot_du_mu teapot_eu_mu \
+        --set noise.sigma_w=0.14 --label w014 --out results/noise_sweep     # one setting changed
 
-Each run is `nbvs reconstruct --scenario diagrams/<name>.yaml --seed <s> --out <out>/<name>_s<s>`;
+Each run is `nbvs reconstruct --scenario diagrams/<name>.yaml --seed <s> --out <out>/<name>_s<s>`
+(with `--label L`: `--set name=<name>_L`, folders <name>_L_s<s>; every `--set` is passed on);
 the table (markdown) and one JSON object per scenario are printed from the runs' summary.json.
 """
 
@@ -21,14 +24,16 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_one(name: str, seed: int, out: Path) -> Path:
-    d = out / f"{name}_s{seed}"
+def run_one(name: str, seed: int, out: Path, settings=(), label: str = "") -> Path:
+    run_name = f"{name}_{label}" if label else name
+    d = out / f"{run_name}_s{seed}"
     if (d / "summary.json").exists():
         return d
     d.mkdir(parents=True, exist_ok=True)
+    extra = [a for kv in list(settings) + ([f"name={run_name}"] if label else []) for a in ("--set", kv)]
     with open(d.with_suffix(".log"), "w") as log:
         subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "reconstruct", "--scenario",
-                        str(ROOT / "diagrams" / f"{name}.yaml"), "--seed", str(seed), "--out", str(d)],
+                        str(ROOT / "diagrams" / f"{name}.yaml"), "--seed", str(seed), "--out", str(d), *extra],
                        stdout=log, stderr=subprocess.STDOUT, check=False)
     return d
 
@@ -80,12 +85,15 @@ def main(argv=None):
     ap.add_argument("--out", default="results/table")
     ap.add_argument("--jobs", type=int, default=1, help="runs at a time")
     ap.add_argument("--collect", default=None, help="only tabulate the finished runs in this folder")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="scenario override passed to every run (as `nbvs reconstruct --set`)")
+    ap.add_argument("--label", default="", help="suffix of the runs' scenario names and folders")
     a = ap.parse_args(argv)
     out = Path(a.collect or a.out)
     if not a.collect:
         jobs = [(n, s) for n in a.scenarios for s in a.seeds]
         with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as ex:
-            list(ex.map(lambda j: run_one(j[0], j[1], out), jobs))
+            list(ex.map(lambda j: run_one(j[0], j[1], out, a.set, a.label), jobs))
     md, agg = table(collect(out))
     print(md)
     for row in agg:

@@ -43,6 +43,35 @@ def test_bad_scenarios_get_one_line_errors(capsys, tmp_path, yaml_text, expect):
     assert expect in err
 
 
+def test_settings_override_fields_through_the_typed_schema():
+    """`nbvs reconstruct --set section.field=value`: the value is YAML, loaded into the same
+    typed dataclasses as the file; the other fields keep the file's values."""
+    from nbvs_drake import DIAGRAMS_DIR
+    base = load_scenario(DIAGRAMS_DIR / "teapot_eu_mu.yaml")
+    sc = load_scenario(DIAGRAMS_DIR / "teapot_eu_mu.yaml", seed=4,
+                       settings=["noise.sigma_w=0.14", "planner.top_k=50", "noise.sigma_arm=[0.01, 0, 0, 0, 0]",
+                                 "name=teapot_eu_mu_w014"])
+    assert (sc.noise.sigma_w, sc.planner.top_k, sc.noise.sigma_arm[0], sc.name, sc.seed) == \
+        (0.14, 50, 0.01, "teapot_eu_mu_w014", 4)
+    assert sc.noise.sigma_v == base.noise.sigma_v and sc.planner.eu_samples == base.planner.eu_samples == 500
+    assert sc.base_dir == base.base_dir and sc.scene == base.scene
+
+
+@pytest.mark.parametrize("setting, expect", [
+    ("noise.sigma_x=1", "sigma_x"),
+    ("noise.sigma_w=abc", "could not convert"),
+    ("planner.top_k=1.5", "top_k"),
+    ("noise.sigma_w", "expected section.field=value"),
+    ("noise.sigma_w=-1", "noise.sigma_w must be >= 0"),
+])
+def test_bad_settings_get_one_line_errors(capsys, tmp_path, setting, expect):
+    rc = main(["reconstruct", "--set", setting, "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and err.startswith("nbvs: error: ")
+    assert expect in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()
+
+
 def test_missing_scenario_file(capsys, tmp_path):
     rc = main(["reconstruct", "--scenario", str(tmp_path / "none.yaml")])
     assert rc == 2 and "scenario file not found" in capsys.readouterr().err

@@ -296,16 +296,22 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     q_prev = None
     dt_ctrl = float(sc.robot.control_dt)
     n_frames = 0
+
+    def move(path, t):
+        """The robot along an executed path from time t; returns the time it arrives."""
+        nonlocal n_frames
+        dur = float(np.clip(len(path) * dt_ctrl / speedup, 1.0, max_motion_s))
+        n = max(round(dur * fps), 2)
+        for j, q in enumerate(_resample(path, n)):
+            pose(q, t + j * dt_frame)
+        n_frames += n
+        return t + n * dt_frame
+
     for i, rec in enumerate(records):
         k = i + 1
         ex = _states(rec.get("executed_path"))
         if i > 0 and len(ex) >= 2:  # the motion that ended at scan k
-            dur = float(np.clip(len(ex) * dt_ctrl / speedup, 1.0, max_motion_s))
-            n = max(round(dur * fps), 2)
-            for j, q in enumerate(_resample(ex, n)):
-                pose(q, t + j * dt_frame)
-                n_frames += 1
-            t += n * dt_frame
+            t = move(ex, t)
         q_true = _states([rec["true_state"]])[0] if rec.get("true_state") else q_prev
         if q_true is not None:
             pose(q_true, t)
@@ -323,12 +329,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
         q_prev = q_true
     if len(hit) >= 2 or q_hit is not None:  # the colliding motion, then the robot stays where it hit
         if len(hit) >= 2:
-            dur = float(np.clip(len(hit) * dt_ctrl / speedup, 1.0, max_motion_s))
-            n = max(round(dur * fps), 2)
-            for j, q in enumerate(_resample(hit, n)):
-                pose(q, t + j * dt_frame)
-                n_frames += 1
-            t += n * dt_frame
+            t = move(hit, t)
         q_prev = q_hit if q_hit is not None else hit[-1]
         pose(q_prev, t)
         n_frames += 1

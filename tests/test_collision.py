@@ -47,3 +47,19 @@ def test_path_free_detects_an_obstacle_between_two_free_states(model):
     d = c.copy()
     d[1] = 0.9
     assert not model.path_free(np.array([c, d]))  # passes x=-0.9, y=0 (wrist in W_box)
+
+
+def test_robot_collision_shapes_are_not_boxes(model):
+    """Drake 1.51 aborts the whole process (BoxBoxGradient, drake#21947) when a box of the
+    robot touches a box of the environment or the map within round-off; one long EU run
+    died that way. The robot's collision shapes are therefore cylinders."""
+    from pydrake.geometry import Box, Role
+    plant = model.diagram.plant()
+    inspector = model.diagram.scene_graph().model_inspector()
+    shapes = {}
+    for gid in inspector.GetAllGeometryIds(Role.kProximity):
+        body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+        if body is not None and body.model_instance() != plant.world_body().model_instance():
+            shapes[inspector.GetName(gid)] = type(inspector.GetShape(gid)).__name__
+    assert len(shapes) >= 8 and {"pedestal", "camera_housing"} <= {n.split("::")[-1] for n in shapes}, shapes
+    assert not any(s == Box.__name__ for s in shapes.values()), shapes

@@ -51,7 +51,7 @@ def test_path_free_detects_an_obstacle_between_two_free_states(model):
 
 def test_robot_collision_shapes_are_not_boxes(model):
     """Drake 1.51 aborts the whole process (BoxBoxGradient, drake#21947) when a box of the
-    robot touches a box of the environment or the map within round-off; one long EU run
+    robot touches a box of the environment or the map within round-off; two long EU runs
     died that way. The robot's collision shapes are therefore cylinders."""
     from pydrake.geometry import Box, Role
     plant = model.diagram.plant()

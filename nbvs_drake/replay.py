@@ -272,16 +272,16 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
 
     hit = _states((collision or {}).get("executed_path"))
     q_hit = _states([collision["true_state"]])[0] if (collision or {}).get("true_state") else None
+    show_hit = len(hit) >= 2 or q_hit is not None
     if len(hit) >= 2:
         meshcat.SetLine(f"{ROOT}/collision/trail", np.c_[hit[:, :2], np.full(len(hit), 0.014)].T.copy(),
                         4.0, _rgba(COLLISION_RGBA))
-    if q_hit is not None:
-        d = 0.09 * np.array([[1, 1], [1, -1]]) / np.sqrt(2)
+    if q_hit is not None:  # two diagonals of 0.18 m on the floor
         c = np.r_[q_hit[:2], 0.016]
-        starts = np.array([c - np.r_[d[0], 0], c - np.r_[d[1], 0]]).T
-        ends = np.array([c + np.r_[d[0], 0], c + np.r_[d[1], 0]]).T
-        meshcat.SetLineSegments(f"{ROOT}/collision/cross", starts.copy(), ends.copy(), 5.0, _rgba(PLAN_RGBA))
-    if len(hit) >= 2 or q_hit is not None:
+        arms = 0.09 / np.sqrt(2) * np.array([[1.0, 1.0, 0.0], [1.0, -1.0, 0.0]])
+        meshcat.SetLineSegments(f"{ROOT}/collision/cross", (c - arms).T.copy(), (c + arms).T.copy(), 5.0,
+                                _rgba(PLAN_RGBA))
+    if show_hit:
         toggled.append(f"{ROOT}/collision")
 
     meshcat.StartRecording(frames_per_second=fps, set_visualizations_while_recording=False)
@@ -327,7 +327,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
         if q_true is not None:
             pose(q_true, t)  # keyframe: the robot waits until the next motion starts
         q_prev = q_true
-    if len(hit) >= 2 or q_hit is not None:  # the colliding motion, then the robot stays where it hit
+    if show_hit:  # the colliding motion, then the robot stays where it hit
         if len(hit) >= 2:
             t = move(hit, t)
         q_prev = q_hit if q_hit is not None else hit[-1]
@@ -362,7 +362,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     tmp.replace(out_path)
     info = {"bytes": out_path.stat().st_size, "duration_s": round(t, 2), "robot_frames": n_frames,
             "maps": len(n_voxels), "unknown_points": int(sum(u for u, _ in n_voxels)),
-            "occupied_points": int(sum(o for _, o in n_voxels)), "collision_shown": len(hit) >= 2 or q_hit is not None,
+            "occupied_points": int(sum(o for _, o in n_voxels)), "collision_shown": show_hit,
             "seconds": time.perf_counter() - t0}
     tmpdir.cleanup()
     if own:

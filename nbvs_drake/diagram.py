@@ -84,7 +84,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     kin = RobotKinematics(sc.robot.urdf)
     mesh = build_object(sc)
     obj_path = mesh.write_obj(work_dir / "object.obj")
-    gt = ground_truth_points(mesh, sc, np.random.default_rng([sc.seed, 3]))
+    gt = ground_truth_points(mesh, sc)
     q0 = np.array(sc.robot.start, float)
     dt = sc.robot.control_dt
 

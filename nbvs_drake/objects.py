@@ -176,10 +176,14 @@ def sample_surface(mesh: ObjectMesh, n: int, rng: np.random.Generator) -> np.nda
     return w0[:, None] * a[tri] + w1[:, None] * b[tri] + w2[:, None] * c[tri]
 
 
-def ground_truth_points(mesh: ObjectMesh, sc: Scenario, rng: np.random.Generator) -> np.ndarray:
+def ground_truth_points(mesh: ObjectMesh, sc: Scenario, rng: np.random.Generator | None = None) -> np.ndarray:
     """Ground-truth surface samples for coverage. Samples within `mapper.table_clearance` of
     the table top are left out: that band (and the underside resting on the table) is
-    removed from every scan by the cloud filter volume, so no planner can ever cover it."""
+    removed from every scan by the cloud filter volume, so no planner can ever cover it.
+    rng None: the run's own draw (seeded by the scenario's seed), so a run directory's
+    coverage can be recomputed from its scenario.yaml."""
+    if rng is None:
+        rng = np.random.default_rng([sc.seed, 3])
     n = sc.scene.gt_points
     pts = sample_surface(mesh, 2 * n, rng)
     keep = pts[:, 2] >= sc.scene.table_height + sc.mapper.table_clearance

@@ -42,17 +42,34 @@ def test_short_run_writes_everything(small_run):
 def test_clearance_script_measures_the_executed_paths(small_run):
     """scripts/clearance.py recomputes, from the run directory alone, the executed motions'
     closest approach to the true world: positive (no collision), one value per trajectory."""
-    import importlib.util
-    from pathlib import Path
-    path = Path(__file__).resolve().parents[1] / "scripts" / "clearance.py"
-    spec = importlib.util.spec_from_file_location("clearance", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
     out, s = small_run
-    c = mod.run_clearance(out)
+    c = _script("clearance").run_clearance(out)
     assert c["trajectories"] == s["executed_trajectories"] == 2
     assert 0.0 < c["min_clearance_m"] < 1.0 and c["nearest"]
     assert c["min_clearance_m"] == pytest.approx(min(c["per_trajectory_m"]), abs=1e-4)
+
+
+def _script(name):
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_true_pose_coverage_of_a_noise_free_run_is_the_runs_own(small_run):
+    """scripts/true_pose_coverage.py re-renders each scan at the logged true state and
+    integrates it as if registration were perfect. Without noise that is what the run did,
+    so it finds the run's coverage scan by scan (up to the logged states' 1e-6 rounding)."""
+    out, s = small_run
+    c = _script("true_pose_coverage").true_pose_coverage(out)
+    assert c["scans"] == 3
+    assert c["coverage"] == pytest.approx(s["coverage"], abs=1e-6)
+    per = c["per_scan"]
+    assert per["coverage_true_poses"] == pytest.approx(per["coverage"], abs=2e-3)
+    assert per["coverage_true_poses"][0] < per["coverage_true_poses"][-1]
 
 
 def test_same_seed_same_summary(small_run, tmp_path):

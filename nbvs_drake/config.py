@@ -136,6 +136,12 @@ class PlannerConfig:
     #: W_box or its unknown voxels) before a candidate is unfeasible; colliding rollouts
     #: count with g = 0. 0: any collision rules the candidate out (Algorithm 1, line 7)
     eu_max_collision_rate: float = 0.0
+    #: whether each rollout's utility keeps reg(x) (seed 000's g = pos reg sur dist at the
+    #: reached state) or only the candidate itself must pass the registration filter. False
+    #: suits re-localisation that also matches the known environment (mission.relocalization:
+    #: icp registers against the table too), so a rollout that drifts off the object is
+    #: still registered and its scan still counts
+    eu_rollout_registration: bool = True
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or

@@ -161,6 +161,24 @@ def test_planner_with_expected_utility(kin, first_scan_map):
     assert res.stages["eu_feasible"] >= 1 and "expected_utility_s" in res.times
 
 
+def test_rollout_utility_with_and_without_the_registration_factor(planner, first_scan_map, kin):
+    """state_utility: with reg (seed 000's g) a state whose simulated scan overlaps the
+    known surface by h or less scores 0; without it (planner.eu_rollout_registration:
+    false) every state keeps sur * dist. States that pass the filter score the same."""
+    sc, omap = first_scan_map
+    q, _ = planner.generate(np.random.default_rng(3), omap)  # states that look at W_box
+    q = q[planner.collision.free(q)][:400]
+    un_total = omap.unknown_count()
+    with_reg = planner.state_utility(omap, q, un_total, 0.5)
+    without = planner.state_utility(omap, q, un_total, 0.5, registration=False)
+    met = planner.evaluator.evaluate(omap, q)
+    passes = registration_overlap(met) > planner.overlap_threshold()
+    sur = planner.evaluator.information(omap, q, met, sc.planner.metric, un_total)
+    np.testing.assert_allclose(without, 0.5 * sur)
+    np.testing.assert_allclose(with_reg, np.where(passes, 0.5 * sur, 0.0))
+    assert np.any(~passes & (sur > 0)) and np.any(passes & (sur > 0))  # both kinds are in the sample
+
+
 def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin, first_scan_map):
     """The mapper's pose_covariance (a scan that could not be registered leaves the belief
     uncertain) reaches the EU: with exact controls the rollouts spread only through the start,

@@ -286,12 +286,15 @@ class RandomSamplingPlanner:
         best.stages, best.times, best.candidates = stages, times, kept
         return best
 
-    def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float) -> np.ndarray:
+    def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float,
+                      registration: bool = True) -> np.ndarray:
         """g = pos * reg * sur * dist of states (N, 8) reached along a path of factor `dist`
-        (pos: collision-free states only are passed in)."""
+        (pos: collision-free states only are passed in); registration False: reg = 1."""
         met = self.evaluator.evaluate(omap, states)
-        reg = registration_overlap(met) > self.overlap_threshold()
-        return reg * self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total) * dist
+        sur = self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total)
+        if registration:
+            sur = sur * (registration_overlap(met) > self.overlap_threshold())
+        return sur * dist
 
     def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,
                          rng: np.random.Generator, start_cov: np.ndarray | None = None):
@@ -306,7 +309,7 @@ class RandomSamplingPlanner:
                 return ok.reshape(-1)
         return expected_utility(
             q0, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, rng,
-            free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"]),
+            free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration),
             weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=start_cov)
 
     #: a believed start state in collision (the belief is uncertain; W_box is a conservative

@@ -41,7 +41,7 @@ def true_pose_coverage(run: Path) -> dict:
         run_cov, true_cov = [], []
         for rec in recs:
             omap = renderer.integrate(omap, renderer.scan(np.asarray(rec["true_state"], float)))
-            true_cov.append(round(coverage(gt, omap.object_points, (0.003,))[0], 6))  # the run's "coverage"
+            true_cov.append(round(coverage(gt, omap.object_points)[0], 6))  # the run's "coverage"
             run_cov.append(rec["coverage"])
     return {"run": str(run), "scenario": sc.name, "seed": sc.seed, "scans": len(recs),
             "coverage": run_cov[-1] if recs else None,

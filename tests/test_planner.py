@@ -161,7 +161,7 @@ def test_planner_with_expected_utility(kin, first_scan_map):
     assert res.stages["eu_feasible"] >= 1 and "expected_utility_s" in res.times
 
 
-def test_rollout_utility_with_and_without_the_registration_factor(planner, first_scan_map, kin):
+def test_rollout_utility_with_and_without_the_registration_factor(planner, first_scan_map):
     """state_utility: with reg (seed 000's g) a state whose simulated scan overlaps the
     known surface by h or less scores 0; without it (planner.eu_rollout_registration:
     false) every state keeps sur * dist. States that pass the filter score the same."""

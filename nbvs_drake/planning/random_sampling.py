@@ -291,10 +291,10 @@ class RandomSamplingPlanner:
         """g = pos * reg * sur * dist of states (N, 8) reached along a path of factor `dist`
         (pos: collision-free states only are passed in); registration False: reg = 1."""
         met = self.evaluator.evaluate(omap, states)
-        sur = self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total)
+        g = self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total)
         if registration:
-            sur = sur * (registration_overlap(met) > self.overlap_threshold())
-        return sur * dist
+            g = g * (registration_overlap(met) > self.overlap_threshold())
+        return g * dist
 
     def expected_utility(self, omap: OccupancyMap, q0: np.ndarray, cand: PlanResult, un_total: int,
                          rng: np.random.Generator, start_cov: np.ndarray | None = None):

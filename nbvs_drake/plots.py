@@ -140,3 +140,43 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+
+
+def carry_forward(per_run: list[list[float]], n: int | None = None) -> "np.ndarray":
+    """(runs, n) coverage per scan; a run that stopped early (a collision, no view) keeps
+    its last coverage for the scans it did not take, as its final model does."""
+    import numpy as np
+
+    n = n or max(len(c) for c in per_run)
+    out = np.full((len(per_run), n), np.nan)
+    for i, c in enumerate(per_run):
+        if c:
+            out[i, : len(c)] = c[:n]
+            out[i, len(c):] = c[-1]
+    return out
+
+
+def plot_coverage_by_scenario(series: dict[str, list[list[float]]], path: Path, title: str = ""):
+    """Mean coverage per scan over each scenario's runs, +- one standard deviation (seed 000
+    Fig. 12); runs that stopped early count with their last coverage (the legend says how
+    many stopped)."""
+    import numpy as np
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
+    for name, per_run in series.items():
+        a = 100 * carry_forward(per_run)
+        k = np.arange(1, a.shape[1] + 1)
+        m, s = a.mean(0), a.std(0)
+        short = sum(len(c) < a.shape[1] for c in per_run)
+        label = f"{name} ({len(per_run)} runs" + (f", {short} stopped early)" if short else ")")
+        ax.plot(k, m, "o-", ms=3, label=label)
+        ax.fill_between(k, m - s, m + s, alpha=0.15)
+    ax.set_xlabel("scan")
+    ax.set_ylabel("mean surface coverage, 3 mm (%)")
+    ax.set_ylim(0, 100)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

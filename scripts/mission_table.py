@@ -9,7 +9,9 @@
 
 Each run is `nbvs reconstruct --scenario diagrams/<name>.yaml --seed <s> --out <out>/<name>_s<s>`
 (with `--label L`: `--set name=<name>_L`, folders <name>_L_s<s>; every `--set` is passed on);
-the table (markdown) and one JSON object per scenario are printed from the runs' summary.json.
+the table (markdown) and one JSON object per scenario are printed from the runs' summary.json,
+and <out>/coverage_by_scan.png plots each scenario's mean coverage per scan (seed 000 Fig. 12;
+a run stopped early counts with its last coverage).
 """
 
 from __future__ import annotations
@@ -22,6 +24,8 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from nbvs_drake.plots import carry_forward, plot_coverage_by_scenario  # noqa: E402
 
 
 def run_one(name: str, seed: int, out: Path, settings=(), label: str = "") -> Path:
@@ -67,7 +71,9 @@ def table(rows: dict[str, list[dict]]) -> tuple[str, list[dict]]:
                "believed_m": mean([p["believed_m"] for p in pe]), "corrected_m": mean([p["corrected_m"] for p in pe]),
                "believed_rad": mean([p["believed_rad"] for p in pe]),
                "corrected_rad": mean([p["corrected_rad"] for p in pe]),
-               "wall_s_mean": mean([s["wall_s"] for s in ss])}
+               "wall_s_mean": mean([s["wall_s"] for s in ss]),
+               "coverage_by_scan_mean": [round(float(c), 6) for c in
+                                         carry_forward([s["coverage_by_scan"] for s in ss]).mean(0)]}
         out.append(agg)
         lines.append(
             f"| {name} | {n} | {agg['coverage_mean']:.3f} | {', '.join(f'{c:.3f}' for c in cov)} | "
@@ -94,7 +100,11 @@ def main(argv=None):
         jobs = [(n, s) for n in a.scenarios for s in a.seeds]
         with ThreadPoolExecutor(max_workers=max(1, a.jobs)) as ex:
             list(ex.map(lambda j: run_one(j[0], j[1], out, a.set, a.label), jobs))
-    md, agg = table(collect(out))
+    rows = collect(out)
+    md, agg = table(rows)
+    plot_coverage_by_scenario({n: [s["coverage_by_scan"] for s in sorted(ss, key=lambda s: s["seed"])]
+                               for n, ss in rows.items()}, out / "coverage_by_scan.png",
+                              "mean coverage per scan")
     print(md)
     for row in agg:
         print(json.dumps(row))

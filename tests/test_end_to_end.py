@@ -72,6 +72,24 @@ def test_true_pose_coverage_of_a_noise_free_run_is_the_runs_own(small_run):
     assert per["coverage_true_poses"][0] < per["coverage_true_poses"][-1]
 
 
+def test_mission_table_averages_coverage_per_scan_and_plots_it(small_run, tmp_path):
+    """scripts/mission_table.py --collect: per scenario the mean coverage per scan, a run
+    that stopped early counting with its last coverage, and the Fig. 12-style plot."""
+    out, s = small_run
+    cov = s["coverage_by_scan"]
+    for seed, by_scan in ((1, cov), (2, cov[:2])):  # the second run as if it had stopped after 2 scans
+        d = tmp_path / f"small_s{seed}"
+        d.mkdir()
+        (d / "summary.json").write_text(json.dumps(dict(s, seed=seed, coverage_by_scan=by_scan)))
+    mt = _script("mission_table")
+    rows = mt.collect(tmp_path)
+    _, agg = mt.table(rows)
+    assert agg[0]["coverage_by_scan_mean"] == pytest.approx(
+        [cov[0], cov[1], (cov[2] + cov[1]) / 2], abs=1e-6)
+    mt.main(["--collect", str(tmp_path)])
+    assert (tmp_path / "coverage_by_scan.png").stat().st_size > 10_000
+
+
 def test_same_seed_same_summary(small_run, tmp_path):
     out, s1 = small_run
     s2 = run_mission(_small(), tmp_path, verbose=False)

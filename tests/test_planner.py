@@ -200,3 +200,22 @@ def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4), np.zeros((3, 3)))
     rep = sys_.GetOutputPort("report").Eval(ctx)
     assert "start_sigma" not in rep and rep["utility"] == pytest.approx(rep["factors"]["du"], rel=1e-9)
+
+
+def test_no_view_feasible_under_the_noise_stops_the_run_and_says_why(kin, first_scan_map):
+    """Reachable candidates that all collide in some rollout under a huge control noise
+    (Algorithm 1's any-collision rule): the plan fails with no_feasible, not no_path, and
+    the planner system stops with stop_reason no_feasible_under_noise."""
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.n_candidates = 600
+    sc.planner.utility = "eu"
+    sc.planner.eu_samples = 100
+    sc.planner.eu_max_collision_rate = 0.0
+    sc.noise.sigma_v, sc.noise.sigma_w = 1.0, 4.0
+    pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
+    sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4))
+    rep = sys_.GetOutputPort("report").Eval(ctx)
+    assert rep["status"] == "no_feasible" and rep["stop_reason"] == "no_feasible_under_noise"
+    assert rep["stages"]["with_path"] > 0 and rep["stages"]["eu_feasible"] == 0
+    assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 1.0

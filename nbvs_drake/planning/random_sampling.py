@@ -78,7 +78,9 @@ class ViewEvaluator:
 
 @dc.dataclass
 class PlanResult:
-    status: str  #: "ok", "no_candidate" (nothing passed the filters) or "no_path"
+    #: "ok", "no_candidate" (nothing passed the filters), "no_path" (none reachable) or
+    #: "no_feasible" (reachable, but every one unfeasible under the expected utility)
+    status: str
     q_goal: np.ndarray | None = None
     controls: np.ndarray | None = None  #: (m, 7)
     states: np.ndarray | None = None  #: (m+1, 8) planned states
@@ -282,7 +284,7 @@ class RandomSamplingPlanner:
         stages["motion_tried"] = n_tried
         stages["with_path"] = n_path
         if best is None:
-            return PlanResult("no_path", stages=stages, times=times)
+            return PlanResult("no_feasible" if n_path else "no_path", stages=stages, times=times)
         best.stages, best.times, best.candidates = stages, times, kept
         return best
 

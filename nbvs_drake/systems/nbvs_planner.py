@@ -30,6 +30,11 @@ class PlannerMemory:
         return self
 
 
+#: PlanResult.status -> the run's stop_reason when the planner finds no view
+STOP_REASONS = {"no_candidate": "no_valid_candidate", "no_path": "no_path",
+                "no_feasible": "no_feasible_under_noise"}
+
+
 class NBVSPlanner(LeafSystem):
     """After each new scan: first the belief is corrected by the scan's registration (the
     mapper's pose_correction for this scan); then the stop criteria (seed 000 §7.5, seed 001
@@ -37,7 +42,9 @@ class NBVSPlanner(LeafSystem):
     mission.stop_unknown_voxels (unknown_below_threshold); otherwise it plans the NBVS from
     the believed state with the configured strategy (random_sampling: seed 000 §7.6 filter
     cascade, g = pos * reg * sur * dist) and emits its control sequence — unless no candidate
-    survives the filters (no_valid_candidate), none can be reached (no_path), the best
+    survives the filters (no_valid_candidate), none can be reached (no_path), the expected
+    utility finds every reachable one unfeasible under the motion noise
+    (no_feasible_under_noise), the best
     candidate's information term is below mission.stop_min_surface
     (surface_below_threshold) or its utility below mission.stop_min_utility
     (score_below_threshold). The belief after a plan is the plan's final state (dead
@@ -109,7 +116,7 @@ class NBVSPlanner(LeafSystem):
                 rep["start_sigma"] = [round(float(v), 5) for v in np.sqrt(np.maximum(np.diag(cov), 0.0))]
             info = res.factors.get("sur", res.factors.get("info", float("inf")))
             if res.status != "ok":
-                reason = "no_valid_candidate" if res.status == "no_candidate" else "no_path"
+                reason = STOP_REASONS[res.status]
                 new = PlannerMemory(mem.controls, believed, k, rep, reason)
             elif mi.stop_min_surface and info < mi.stop_min_surface:
                 new = PlannerMemory(mem.controls, believed, k, rep, "surface_below_threshold")

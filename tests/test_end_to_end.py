@@ -90,6 +90,35 @@ def test_mission_table_averages_coverage_per_scan_and_plots_it(small_run, tmp_pa
     assert (tmp_path / "coverage_by_scan.png").stat().st_size > 10_000
 
 
+def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
+    """notebooks/coverage_analysis.ipynb, every code cell in order, as Jupyter would run it
+    from notebooks/ next to a results/ folder with one run and one mission table."""
+    import shutil
+    from pathlib import Path
+
+    import matplotlib
+    import nbformat
+
+    matplotlib.use("Agg")
+    out, s = small_run
+    root = Path(__file__).resolve().parents[1]
+    shutil.copytree(out, tmp_path / "results" / "small")
+    (tmp_path / "results" / "table" / "small_s1").mkdir(parents=True)
+    shutil.copy(out / "summary.json", tmp_path / "results" / "table" / "small_s1" / "summary.json")
+    (tmp_path / "scripts").symlink_to(root / "scripts")
+    (tmp_path / "notebooks").mkdir()
+    monkeypatch.chdir(tmp_path / "notebooks")
+    monkeypatch.setattr("sys.path", list(__import__("sys").path))  # the notebook extends it
+    nb = nbformat.read(root / "notebooks" / "coverage_analysis.ipynb", as_version=4)
+    nbformat.validate(nb)
+    ns: dict = {}
+    for cell in nb.cells:
+        if cell.cell_type == "code":
+            exec(compile(cell.source, "coverage_analysis.ipynb", "exec"), ns)
+    assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"]) == s["scans"]
+    assert ns["agg"][0]["coverage_mean"] == pytest.approx(s["coverage"])
+
+
 def test_same_seed_same_summary(small_run, tmp_path):
     out, s1 = small_run
     s2 = run_mission(_small(), tmp_path, verbose=False)

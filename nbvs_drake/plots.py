@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import matplotlib
+import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -142,17 +143,13 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     plt.close(fig)
 
 
-def carry_forward(per_run: list[list[float]], n: int | None = None) -> "np.ndarray":
-    """(runs, n) coverage per scan; a run that stopped early (a collision, no view) keeps
-    its last coverage for the scans it did not take, as its final model does."""
-    import numpy as np
-
-    n = n or max(len(c) for c in per_run)
-    out = np.full((len(per_run), n), np.nan)
+def carry_forward(per_run: list[list[float]]) -> np.ndarray:
+    """(runs, longest run) coverage per scan; a run that stopped early (a collision, no
+    view) keeps its last coverage for the scans it did not take, as its final model does."""
+    out = np.zeros((len(per_run), max(len(c) for c in per_run)))
     for i, c in enumerate(per_run):
-        if c:
-            out[i, : len(c)] = c[:n]
-            out[i, len(c):] = c[-1]
+        out[i, : len(c)] = c
+        out[i, len(c):] = c[-1]
     return out
 
 
@@ -160,8 +157,6 @@ def plot_coverage_by_scenario(series: dict[str, list[list[float]]], path: Path, 
     """Mean coverage per scan over each scenario's runs, +- one standard deviation (seed 000
     Fig. 12); runs that stopped early count with their last coverage (the legend says how
     many stopped)."""
-    import numpy as np
-
     fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
     for name, per_run in series.items():
         a = 100 * carry_forward(per_run)

@@ -94,6 +94,7 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     """notebooks/coverage_analysis.ipynb, every code cell in order, as Jupyter would run it
     from notebooks/ next to a results/ folder with one run and one mission table."""
     import shutil
+    import sys
     from pathlib import Path
 
     import matplotlib
@@ -108,7 +109,7 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     (tmp_path / "scripts").symlink_to(root / "scripts")
     (tmp_path / "notebooks").mkdir()
     monkeypatch.chdir(tmp_path / "notebooks")
-    monkeypatch.setattr("sys.path", list(__import__("sys").path))  # the notebook extends it
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the notebook extends it
     nb = nbformat.read(root / "notebooks" / "coverage_analysis.ipynb", as_version=4)
     nbformat.validate(nb)
     ns: dict = {}

@@ -153,11 +153,10 @@ def carry_forward(per_run: list[list[float]]) -> np.ndarray:
     return out
 
 
-def plot_coverage_by_scenario(series: dict[str, list[list[float]]], path: Path, title: str = ""):
-    """Mean coverage per scan over each scenario's runs, +- one standard deviation (seed 000
-    Fig. 12); runs that stopped early count with their last coverage (the legend says how
-    many stopped)."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
+def draw_coverage_by_scenario(ax, series: dict[str, list[list[float]]], title: str = ""):
+    """Draws on `ax` the mean coverage per scan over each scenario's runs (series: scenario
+    -> per run its coverage_by_scan), +- one standard deviation (seed 000 Fig. 12); runs that
+    stopped early count with their last coverage (the legend says how many stopped)."""
     for name, per_run in series.items():
         a = 100 * carry_forward(per_run)
         k = np.arange(1, a.shape[1] + 1)
@@ -172,6 +171,12 @@ def plot_coverage_by_scenario(series: dict[str, list[list[float]]], path: Path, 
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title(title)
+
+
+def plot_coverage_by_scenario(series: dict[str, list[list[float]]], path: Path, title: str = ""):
+    """`draw_coverage_by_scenario` into the PNG `path`."""
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
+    draw_coverage_by_scenario(ax, series, title)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

@@ -82,6 +82,26 @@ def noise_sigmas(noise: NoiseConfig) -> np.ndarray:
     return np.array([noise.sigma_v, noise.sigma_w] + list(noise.sigma_arm), float)
 
 
+def control_sigmas(noise: NoiseConfig, controls: np.ndarray) -> np.ndarray:
+    """Per-step standard deviations (m, NU) of the noise on `controls` (m, NU): Table 4's
+    sigmas on every component, except (unless `noise.perturb_zero_commands`) where the
+    command is exactly 0, which is executed exactly."""
+    controls = np.asarray(controls, float)
+    sig = np.broadcast_to(noise_sigmas(noise), controls.shape)
+    return sig.copy() if noise.perturb_zero_commands else np.where(controls != 0.0, sig, 0.0)
+
+
+def sample_control_noise(rng: np.random.Generator, noise: NoiseConfig, controls: np.ndarray,
+                         n: int | None = None) -> np.ndarray:
+    """Noise for executing `controls` (m, NU): (m, NU), or (n, m, NU) for n rollouts; truncated
+    at +-beta sigma per component, zero where `control_sigmas` is zero. The same generator
+    draws give the same noise on the commanded components whatever the zero-command rule."""
+    controls = np.asarray(controls, float)
+    shape = (len(controls),) if n is None else (n, len(controls))
+    eps = sample_truncated_normal(rng, noise_sigmas(noise), noise.beta, shape)
+    return eps * (control_sigmas(noise, controls) > 0)
+
+
 def sample_truncated_normal(rng: np.random.Generator, sigma: np.ndarray, beta: float, shape) -> np.ndarray:
     """Zero-mean normal samples with standard deviations `sigma` (broadcast over the last
     axis), truncated to [-beta sigma, beta sigma] by inverse-CDF sampling."""

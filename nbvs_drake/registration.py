@@ -26,7 +26,7 @@ import dataclasses as dc
 import numpy as np
 
 from .config import Scenario
-from .motion import noise_sigmas, rollout, sample_truncated_normal, wrap_angle
+from .motion import rollout, sample_control_noise, wrap_angle
 
 
 @dc.dataclass
@@ -276,7 +276,7 @@ def motion_prior(q_start: np.ndarray, controls: np.ndarray, dt: float, believed_
     controls = np.asarray(controls, float)
     if len(controls) == 0:
         return np.diag([1e-8, 1e-8, 1e-8])
-    eps = sample_truncated_normal(rng, noise_sigmas(noise), noise.beta, (n, len(controls)))
+    eps = sample_control_noise(rng, noise, controls, n)
     finals = rollout(q_start, controls[None] + eps, dt)[:, -1]
     # X_final X_believed^-1 in the plane: dyaw = theta_f - theta_b, t = p_f - Rz(dyaw) p_b
     b = np.asarray(believed_end, float)

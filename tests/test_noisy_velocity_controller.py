@@ -45,7 +45,7 @@ def test_noise_is_seeded_and_added_per_plan():
     np.testing.assert_array_equal(a1, a2)
     assert not np.allclose(a1, a3)
     eps = a1[: tau.m] - tau.controls
-    np.testing.assert_allclose(eps, plan_noise(3, 1, tau.m, noise), atol=1e-15)
+    np.testing.assert_allclose(eps, plan_noise(3, 1, tau.controls, noise), atol=1e-15)
     np.testing.assert_allclose(eps[:, 2:], 0.0, atol=1e-15)  # arm exact (sigma 0)
     assert np.all(np.abs(eps[:, 1]) <= 3 * 0.28 + 1e-12)
 
@@ -76,3 +76,23 @@ def test_truncated_logpdf_normalised():
 def test_noise_sigmas_layout():
     n = NoiseConfig(sigma_v=1, sigma_w=2, sigma_arm=[3, 4, 5, 6, 7])
     np.testing.assert_array_equal(noise_sigmas(n), [1, 2, 3, 4, 5, 6, 7])
+
+
+def test_a_component_commanded_zero_is_executed_exactly():
+    """The seeds' library perturbs only non-zero velocities: driving straight (omega = 0)
+    keeps the heading, a turn in place (v = 0) keeps the position, and the rest of the plan
+    gets the same draws as with every component perturbed."""
+    tau = _plan(m=30)
+    U = tau.controls.copy()
+    U[:10, 1] = 0.0   # drive straight
+    U[10:20, 0] = 0.0  # turn in place
+    U[20:, :2] = 0.0   # base at rest
+    tau = ControlSequence(1, 0.1, U, np.zeros((31, 8)))
+    noise = NoiseConfig()
+    eps = _replay(noise, 3, tau)[0][: tau.m] - U
+    np.testing.assert_array_equal(eps[U == 0.0], 0.0)
+    assert np.all(eps[:10, 0] != 0) and np.all(eps[10:20, 1] != 0)
+    every = NoiseConfig(perturb_zero_commands=True)
+    eps_all = _replay(every, 3, tau)[0][: tau.m] - U
+    assert np.all(eps_all[:, :2] != 0)
+    np.testing.assert_allclose(eps[U != 0.0], eps_all[U != 0.0], atol=1e-15)

@@ -11,7 +11,7 @@ from pydrake.systems.sensors import ImageDepth32F
 
 from nbvs_drake.config import load_scenario
 from nbvs_drake.mapping.occupancy import OccupancyMap
-from nbvs_drake.motion import ControlSequence, noise_sigmas, rollout, sample_truncated_normal, steer
+from nbvs_drake.motion import ControlSequence, rollout, sample_control_noise, steer
 from nbvs_drake.registration import (Correction, KnownSolids, RegistrationConfig, RegistrationModel, ScanView,
                                      environment_model, motion_prior, planar_projection, region_mask,
                                      register_scan, state_error)
@@ -39,7 +39,18 @@ def test_motion_prior_matches_the_noise():
     U[:, 0] = 0.3  # drive 1.5 m straight
     qb = rollout(q0, U, 0.1)[-1]
     C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0), n=2000)
-    # heading: a random walk of 50 steps of sigma_w dt (truncated at 3 sigma)
+    # driving straight commands omega = 0, which is executed exactly: no heading error, and
+    # along the drive only sigma_v (50 steps of sigma_v dt)
+    assert np.sqrt(C[2, 2]) < 1e-3
+    assert np.sqrt(C[0, 0]) == pytest.approx(sc.noise.sigma_v * 0.1 * np.sqrt(50), rel=0.1)
+    # a turn in place: a random walk of 50 steps of sigma_w dt (truncated at 3 sigma)
+    T = np.zeros((50, 7))
+    T[:, 1] = 0.6
+    Ct = motion_prior(q0, T, 0.1, rollout(q0, T, 0.1)[-1], sc.noise, np.random.default_rng(0), n=2000)
+    assert np.sqrt(Ct[2, 2]) == pytest.approx(sc.noise.sigma_w * 0.1 * np.sqrt(50), rel=0.1)
+    # perturbing every component (perturb_zero_commands) puts the heading walk on the drive too
+    sc.noise.perturb_zero_commands = True
+    C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0), n=2000)
     assert np.sqrt(C[2, 2]) == pytest.approx(sc.noise.sigma_w * 0.1 * np.sqrt(50), rel=0.1)
     sc.noise.sigma_w = sc.noise.sigma_v = 0.0
     assert np.all(np.sqrt(np.diag(motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0)))) < 1e-3)
@@ -53,7 +64,7 @@ def _noisy_second_scan(sc, r, draw: int, angle: float):
     qg = q0.copy()
     qg[:3] = [-1.45 * np.cos(angle), -1.45 * np.sin(angle), angle]
     U = steer(q0, qg, sc.robot)[0][1]
-    eps = sample_truncated_normal(np.random.default_rng(draw), noise_sigmas(sc.noise), 3.0, (len(U),))
+    eps = sample_control_noise(np.random.default_rng(draw), sc.noise, U)
     qt, states = rollout(q0, U + eps, 0.1)[-1], rollout(q0, U, 0.1)
     qb = states[-1]
     Xt, Xb = r.kin.camera_poses(qt)[0], r.kin.camera_poses(qb)[0]
@@ -67,6 +78,8 @@ def renderer(tmp_path_factory):
     from nbvs_drake.scanning import ScanRenderer
     sc = load_scenario()
     sc.noise.sigma_v, sc.noise.sigma_w = 0.00165, 0.28
+    # every component perturbed, the drive's omega too: larger heading errors to correct
+    sc.noise.perturb_zero_commands = True
     r = ScanRenderer(sc, tmp_path_factory.mktemp("scan"))
     return sc, r, r.scan(np.array(sc.robot.start))
 

@@ -2,7 +2,8 @@
 bound of §7.3 (eq. 18).
 
 k rollouts of the motion model the NoisyVelocityController executes (Euler integration of
-u_t + eps_t, eps truncated Gaussian); every intermediate state of every rollout is checked for
+u_t + eps_t, eps truncated Gaussian, zero on the components commanded 0 unless
+`noise.perturb_zero_commands`); every intermediate state of every rollout is checked for
 collision with Drake (in batches); any colliding rollout makes the candidate unfeasible (the
 conservative rule of Algorithm 1, line 7). With `max_collision_rate` > 0 the candidate is
 unfeasible only when more than that share of the k rollouts collide (the "weighted strategy"
@@ -26,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from ..config import NoiseConfig
-from ..motion import noise_sigmas, rollout, sample_truncated_normal, truncated_normal_logpdf
+from ..motion import control_sigmas, rollout, sample_control_noise, sample_truncated_normal, truncated_normal_logpdf
 from ..registration import EXACT_POSE_VAR, apply_corrections
 
 
@@ -77,8 +78,8 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         raise ValueError(f"max_collision_rate must be in [0, 1), got {max_collision_rate}")
     controls = np.asarray(controls, float)
     m = len(controls)
-    sigma = noise_sigmas(noise)
-    eps = sample_truncated_normal(rng, sigma, noise.beta, (k, m))
+    sigma = control_sigmas(noise, controls)  # (m, NU): 0 where the command is exact
+    eps = sample_control_noise(rng, noise, controls, k)
     z = None
     if start_cov is not None and np.any(np.diag(np.asarray(start_cov, float)) > EXACT_POSE_VAR):
         L = np.linalg.cholesky(np.asarray(start_cov, float) + EXACT_POSE_VAR * np.eye(3))

@@ -7,7 +7,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..config import NoiseConfig
-from ..motion import NU, ControlSequence, noise_sigmas, sample_truncated_normal
+from ..motion import NU, ControlSequence, sample_control_noise
 
 
 class _Noise:
@@ -22,17 +22,19 @@ class _Noise:
         return self
 
 
-def plan_noise(seed: int, plan_id: int, m: int, noise: NoiseConfig) -> np.ndarray:
-    """The noise added to plan `plan_id` (m, 7): seeded by (seed, plan_id) only, so a run is
-    reproducible whatever else draws random numbers."""
+def plan_noise(seed: int, plan_id: int, controls: np.ndarray, noise: NoiseConfig) -> np.ndarray:
+    """The noise added to plan `plan_id`'s controls (m, 7): seeded by (seed, plan_id) only, so
+    a run is reproducible whatever else draws random numbers; zero on components commanded 0
+    unless `noise.perturb_zero_commands`."""
     rng = np.random.default_rng([int(seed), 7, int(plan_id)])
-    return sample_truncated_normal(rng, noise_sigmas(noise), noise.beta, (m,))
+    return sample_control_noise(rng, noise, controls)
 
 
 class NoisyVelocityController(LeafSystem):
     """Replays tau = {u_1..u_m}, each u held for dt, adding zero-mean Gaussian noise truncated
     to [-beta sigma, beta sigma] per component (seed 000 §6.1: sigma_v, sigma_w on the base,
-    sigma_arm per joint). A new plan (larger plan_id on the input) starts at the next tick;
+    sigma_arm per joint); a component commanded 0 is exact unless
+    `noise.perturb_zero_commands`. A new plan (larger plan_id on the input) starts at the next tick;
     zero sigmas reproduce the plan exactly.
 
     Input ports:
@@ -64,7 +66,7 @@ class NoisyVelocityController(LeafSystem):
         plan_id, step = int(x[0]), int(x[1])
         if tau.plan_id > plan_id:
             plan_id, step = tau.plan_id, 0
-            noise = _Noise(plan_id, plan_noise(self.seed, plan_id, tau.m, self.noise))
+            noise = _Noise(plan_id, plan_noise(self.seed, plan_id, tau.controls, self.noise))
             state.get_mutable_abstract_state(self._eps).set_value(noise)
         if step < tau.m and tau.plan_id == plan_id:
             u = tau.controls[step] + noise.eps[step]

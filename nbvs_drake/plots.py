@@ -46,7 +46,8 @@ def _xy(states):
 
 def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_error: float = 0.002,
                collision: dict | None = None):
-    """Top view (x, y) of a run, after seed 000 Fig. 17: the table and W_box, per iteration
+    """Top view (x, y) of a run, after seed 000 Fig. 17: the table, W_box and the other known
+    obstacles (cluttered_room's chairs; their names are returned), per iteration
     the planned base path (dashed; the plan made after scan k) and the executed true path
     (solid; the motion that ended at scan k + 1) in one colour, the true base pose at each
     scan (numbered, with its heading), and the believed (dead-reckoned, x) and corrected
@@ -55,7 +56,7 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     scan positions. `collision` (summary.json's): the colliding trajectory's executed path up
     to the collision, in red, and the true pose where it stopped."""
     import numpy as np
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Polygon, Rectangle
 
     fig, ax = plt.subplots(figsize=(6.4, 6.0), dpi=110)
     tx, ty = scene_cfg.table_size
@@ -75,6 +76,23 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
             return None
         labelled.add(key)
         return text
+
+    # the rest of the known environment (cluttered_room's chairs), as footprints
+    from .config import Scenario
+    from .scene import environment_boxes
+    obstacles = []
+    for b in environment_boxes(Scenario(scene=scene_cfg)):
+        if b.name == "floor" or b.name.startswith("table"):
+            continue
+        c, s = np.cos(b.yaw), np.sin(b.yaw)
+        hx, hy = b.size[0] / 2, b.size[1] / 2
+        corners = np.array([(b.center[0] + c * x - s * y, b.center[1] + s * x + c * y)
+                            for x, y in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))])
+        kind = "chairs" if b.name.startswith("chair") else "obstacles"
+        ax.add_patch(Polygon(corners, closed=True, facecolor=(0.62, 0.68, 0.85), edgecolor=(0.2, 0.3, 0.6),
+                             lw=0.8, zorder=0, label=once(kind, kind)))
+        obstacles.append(b.name)
+        pts.append(corners)
 
     for i, rec in enumerate(records):
         k = rec.get("iteration", i + 1)
@@ -141,6 +159,7 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
+    return obstacles
 
 
 def carry_forward(per_run: list[list[float]]) -> np.ndarray:

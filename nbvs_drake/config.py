@@ -87,10 +87,10 @@ class NoiseConfig:
     beta: float = 3.0  #: truncation in units of sigma
     #: False (default): a component commanded 0 (omega while the base stands or drives
     #: straight, v while it turns in place, a still joint) is executed exactly and only
-    #: commanded velocities get noise,
-    #: as the seeds' own library samples it (vpl generateSampleState: "only if the velocity
-    #: is non-zero we introduce error") and as Table 4 was measured (sigma_w from rotations
-    #: in place, sigma_v from straight drives). True: every component of every control.
+    #: commanded velocities get noise, as the seeds' own library samples it (vpl
+    #: generateSampleState: "only if the velocity is non-zero we introduce error") and as
+    #: Table 4 was measured (sigma_w from rotations in place, sigma_v from straight drives).
+    #: True: every component of every control.
     perturb_zero_commands: bool = False
 
 

@@ -79,15 +79,14 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
 
     # the rest of the known environment (cluttered_room's chairs), as footprints
     from .config import Scenario
+    from .registration import rot_z
     from .scene import environment_boxes
     obstacles = []
     for b in environment_boxes(Scenario(scene=scene_cfg)):
         if b.name == "floor" or b.name.startswith("table"):
             continue
-        c, s = np.cos(b.yaw), np.sin(b.yaw)
-        hx, hy = b.size[0] / 2, b.size[1] / 2
-        corners = np.array([(b.center[0] + c * x - s * y, b.center[1] + s * x + c * y)
-                            for x, y in ((-hx, -hy), (hx, -hy), (hx, hy), (-hx, hy))])
+        local = 0.5 * np.array(b.size[:2]) * np.array([(-1, -1), (1, -1), (1, 1), (-1, 1)])
+        corners = np.array(b.center[:2]) + local @ rot_z(b.yaw)[:2, :2].T
         kind = "chairs" if b.name.startswith("chair") else "obstacles"
         ax.add_patch(Polygon(corners, closed=True, facecolor=(0.62, 0.68, 0.85), edgecolor=(0.2, 0.3, 0.6),
                              lw=0.8, zorder=0, label=once(kind, kind)))

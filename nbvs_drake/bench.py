@@ -158,11 +158,82 @@ def bench_planning(seed: int = 0) -> dict:
     return out
 
 
+def bench_motion(seed: int = 0) -> dict:
+    """The tree planner's inner loop against its straightforward versions, in the same run:
+    the vectorised rollout vs stepping euler_step, the numba nearest vertex vs numpy's argmin
+    of weighted_dist, path_free's coarse first pass vs one pass over every state (RRT edges
+    in the cluttered room from its start, most of them blocked), and one RRT Ext-Ext across the table
+    there (500 vertices at most; seconds, iterations per second)."""
+    from .motion import euler_step, rollout, steer_together
+    from .planning.rrt import Tree, rrt_ext_ext, weighted_dist
+    rng = np.random.default_rng(seed)
+    out = {}
+
+    def stepwise(q0, U, dt):
+        q = np.broadcast_to(np.asarray(q0, float), U.shape[:-2] + (8,)).copy()
+        states = [q]
+        for t in range(U.shape[-2]):
+            q = euler_step(q, U[..., t, :], dt)
+            states.append(q)
+        return np.stack(states, axis=-2)
+
+    U = rng.normal(size=(100, 7)) * 0.2
+    q0 = np.zeros(8)
+    t_old = _best_of(lambda: [stepwise(q0, U, 0.1) for _ in range(50)], 3) / 50
+    t_new = _best_of(lambda: [rollout(q0, U, 0.1) for _ in range(50)], 3) / 50
+    out["rollout_100_steps_us"] = {"stepwise": 1e6 * t_old, "vectorised": 1e6 * t_new, "speedup": t_old / t_new}
+    Uk = U[None] + rng.normal(size=(500, 100, 7)) * 0.01
+    t_old = _best_of(lambda: stepwise(q0, Uk, 0.1), 3)
+    t_new = _best_of(lambda: rollout(q0, Uk, 0.1), 3)
+    out["rollout_500x100_ms"] = {"stepwise": 1e3 * t_old, "vectorised": 1e3 * t_new, "speedup": t_old / t_new}
+
+    w = np.array([1.0, 1.0, 0.5, 0.3, 0.3, 0.3, 0.3, 0.3])
+    tree = Tree(np.zeros(8), 5000)
+    for q in rng.normal(size=(4999, 8)):
+        tree.add(0, q, np.zeros((0, 7)), 0.0)
+    qs = rng.normal(size=(50, 8))
+    tree.nearest(qs[0], w)  # compile / load the cache
+    t_old = _best_of(lambda: [int(np.argmin(weighted_dist(tree.q[: tree.n], q, w))) for q in qs], 3) / len(qs)
+    t_new = _best_of(lambda: [tree.nearest(q, w) for q in qs], 3) / len(qs)
+    out["nearest_of_5000_us"] = {"numpy": 1e6 * t_old, "numba": 1e6 * t_new, "speedup": t_old / t_new}
+
+    sc = load_scenario("diagrams/cluttered_room.yaml")
+    kin = RobotKinematics(sc.robot.urdf)
+    cm = CollisionModel(sc, kin)
+    planner = RandomSamplingPlanner(sc, kin, cm)
+    start = np.array(sc.robot.start)
+    ends = planner.sample_states(rng, 200)
+    edges = [rollout(start, c, sc.robot.control_dt) for c in (steer_together(start, e, sc.robot) for e in ends)]
+    full = CollisionModel.__new__(CollisionModel)
+    full.__dict__.update(cm.__dict__)
+    full.coarse_stride = 10**9
+    verdict = [cm.path_free(e) for e in edges]
+    assert verdict == [full.path_free(e) for e in edges]
+    t_old = _best_of(lambda: [full.path_free(e) for e in edges], 2)
+    t_new = _best_of(lambda: [cm.path_free(e) for e in edges], 2)
+    out["path_free_200_edges_s"] = {"one_pass": t_old, "coarse_first": t_new, "speedup": t_old / t_new,
+                                    "free_edges": int(sum(verdict))}
+
+    far = planner.sample_states(rng, 2000)
+    far = far[far[:, 0] > 1.0]
+    goal = far[np.flatnonzero(cm.free(far))[0]]  # a free state across the table
+    t = time.perf_counter()
+    res = rrt_ext_ext(start, goal, sc.robot, np.asarray(sc.planner.weights), planner.sample_states,
+                      planner.path_free, kin.clip_arm, np.random.default_rng(seed), max_nodes=500,
+                      step=sc.planner.tree_step)
+    dt = time.perf_counter() - t
+    out["rrt_cluttered_room"] = {"s": dt, "found": bool(res.found), "vertices": res.vertices,
+                                 "iterations": res.iterations, "iterations_per_s": res.iterations / dt}
+    return out
+
+
 def main(args) -> int:
     if args.what == "visibility":
         res = bench_visibility(n_views=args.views)
     elif args.what == "planning":
         res = bench_planning()
+    elif args.what == "motion":
+        res = bench_motion()
     else:
         raise SystemExit(f"unknown benchmark {args.what!r}")
     print(json.dumps(res, indent=None if args.json else 2))

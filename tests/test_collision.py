@@ -63,3 +63,23 @@ def test_robot_collision_shapes_are_not_boxes(model):
             shapes[inspector.GetName(gid)] = type(inspector.GetShape(gid)).__name__
     assert len(shapes) >= 8 and {"pedestal", "camera_housing"} <= {n.split("::")[-1] for n in shapes}, shapes
     assert not any(s == Box.__name__ for s in shapes.values()), shapes
+
+
+def test_path_free_coarse_pass_gives_the_full_check(model):
+    """path_free checks every 8th interpolated state first; its verdict is that of checking
+    every state at once, on free paths and on paths that clip an obstacle briefly."""
+    rng = np.random.default_rng(5)
+    full = CollisionModel.__new__(CollisionModel)
+    full.__dict__.update(model.__dict__)
+    full.coarse_stride = 10**9  # one pass over every state
+    verdicts = []
+    for _ in range(40):
+        a = np.array([-1.4, rng.uniform(-1.2, 1.2), rng.uniform(-np.pi, np.pi), 0, 0.3, -0.2, 0, 0])
+        b = a.copy()
+        b[0] = rng.uniform(-1.4, -0.6)
+        b[1] = rng.uniform(-1.2, 1.2)
+        b[3:] += rng.normal(size=5) * 0.4
+        ok = model.path_free(np.array([a, b]))
+        assert ok == full.path_free(np.array([a, b]))
+        verdicts.append(ok)
+    assert any(verdicts) and not all(verdicts)

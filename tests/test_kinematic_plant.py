@@ -47,9 +47,22 @@ def test_differential_drive_arc(kin):
 
 
 def test_rollout_is_the_same_model(kin):
-    U = np.random.default_rng(0).normal(size=(15, 7)) * 0.2
-    s = rollout(np.zeros(8), U, 0.1)
-    q = np.zeros(8)
-    for u in U:
+    """The vectorised rollout gives bit for bit the states of stepping euler_step (the
+    plant's update), for one plan and for a batch of noisy rollouts from spread starts."""
+    rng = np.random.default_rng(0)
+    U = rng.normal(size=(40, 7)) * 0.2
+    U[rng.random(U.shape) < 0.3] = 0.0
+    q0 = np.array([0.3, -1.2, 2.9, 0.1, 0.5, -0.4, 0.2, 1.0])
+    s = rollout(q0, U, 0.1)
+    q = q0.copy()
+    for t, u in enumerate(U):
         q = euler_step(q, u, 0.1)
-    np.testing.assert_allclose(s[-1], q)
+        assert np.array_equal(s[t + 1], q)
+    Uk = U[None] + rng.normal(size=(7, 40, 7)) * 0.01
+    q0k = q0 + rng.normal(size=(7, 8)) * 0.05
+    sk = rollout(q0k, Uk, 0.1)
+    q = q0k.copy()
+    for t in range(40):
+        q = euler_step(q, Uk[:, t], 0.1)
+        assert np.array_equal(sk[:, t + 1], q)
+    assert rollout(q0, np.zeros((0, 7)), 0.1).shape == (1, 8)

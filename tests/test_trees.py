@@ -54,6 +54,32 @@ def test_tree_paths_and_costs():
     assert weighted_dist(np.zeros((1, 8)), np.array([0, 0, 2 * np.pi, 0, 0, 0, 0, 0]), W)[0] == pytest.approx(0, abs=1e-9)
 
 
+def test_nearest_is_the_argmin_of_the_weighted_distance():
+    """The numba nearest-vertex search picks numpy's argmin of weighted_dist, ties and the
+    wrapped angle included."""
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 17, 500):
+        for rounded in (False, True):
+            t = Tree(np.zeros(8), n)
+            for _ in range(n - 1):
+                q = rng.normal(size=8) * 3
+                t.add(0, np.round(q, 1) if rounded else q, np.zeros((0, 7)), 0.0)
+            for _ in range(20):
+                q = rng.normal(size=8) * 3
+                assert t.nearest(q, W) == int(np.argmin(weighted_dist(t.q[: t.n], q, W)))
+
+
+def test_tree_edges_are_the_first_steering_sequence():
+    from nbvs_drake.config import RobotConfig
+    from nbvs_drake.motion import steer, steer_together
+    rc = RobotConfig()
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        q0, q1 = rng.normal(size=8), rng.normal(size=8)
+        kind, controls = steer(q0, q1, rc)[0]
+        assert kind == "together" and np.array_equal(steer_together(q0, q1, rc), controls)
+
+
 def test_ort_returns_a_vertex_at_least_as_good_as_the_roots_children(kin, first_scan_map):
     from nbvs_drake.planning.collision import CollisionModel
     from nbvs_drake.planning.ort import ORTPlanner

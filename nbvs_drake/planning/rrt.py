@@ -11,12 +11,14 @@ eq. 8 with the base angle wrapped.
 from __future__ import annotations
 
 import dataclasses as dc
+import math
 from typing import Callable
 
+import numba as nb
 import numpy as np
 
 from ..config import RobotConfig
-from ..motion import rollout, steer, wrap_angle
+from ..motion import rollout, steer_together, wrap_angle
 
 StateSampler = Callable[[np.random.Generator, int], np.ndarray]
 PathFree = Callable[[np.ndarray], bool]
@@ -29,9 +31,27 @@ def weighted_dist(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(w * d * d, axis=-1))
 
 
+@nb.njit(cache=True)
+def _nearest(Q: np.ndarray, q: np.ndarray, w: np.ndarray) -> int:
+    """argmin over the rows of Q of weighted_dist(Q, q, w), with numpy's arithmetic: the
+    same wrapped angle and the same (pairwise) order of the 8-term sum, so the same index."""
+    best, best_d = 0, np.inf
+    d = np.empty(8)
+    for i in range(Q.shape[0]):
+        for j in range(8):
+            e = Q[i, j] - q[j]
+            if j == 2:
+                e = (e + np.pi) % (2 * np.pi) - np.pi
+            d[j] = w[j] * e * e
+        s = math.sqrt(((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7])))
+        if s < best_d:
+            best, best_d = i, s
+    return best
+
+
 def edge(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> tuple[np.ndarray, np.ndarray]:
     """(controls, states) of the 'together' steering edge from q0 to q1."""
-    kind, controls = steer(q0, q1, rc)[0]
+    controls = steer_together(q0, q1, rc)
     return controls, rollout(q0, controls, rc.control_dt)
 
 
@@ -47,7 +67,7 @@ class Tree:
         self.n = 1
 
     def nearest(self, q: np.ndarray, w: np.ndarray) -> int:
-        return int(np.argmin(weighted_dist(self.q[: self.n], q, w)))
+        return int(_nearest(self.q[: self.n], np.asarray(q, float), np.asarray(w, float)))
 
     def add(self, parent: int, q: np.ndarray, controls: np.ndarray, length: float) -> int:
         i = self.n

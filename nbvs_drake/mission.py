@@ -120,7 +120,8 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         q_stop = kplant.GetOutputPort("state").Eval(kplant.GetMyContextFromRoot(ctx))
         collision = {"trajectory": executed, "t_sim": round(halted["t"], 3),
                      "true_state": [round(float(v), 6) for v in q_stop],
-                     "executed_path": rec.unfinished_path()}
+                     "executed_path": rec.unfinished_path(),
+                     "contacts": monitor_sys.truth.contacts(q_stop)}
     summary = {
         "scenario": sc.name,
         "seed": sc.seed,

@@ -83,3 +83,15 @@ def test_path_free_coarse_pass_gives_the_full_check(model):
         assert ok == full.path_free(np.array([a, b]))
         verdicts.append(ok)
     assert any(verdicts) and not all(verdicts)
+
+
+def test_contacts_name_what_the_robot_touches(model):
+    """A collision is reported with the geometries in contact: the base driven into the
+    table touches the table; a free state touches nothing."""
+    inside_table = np.array([-0.5, 0.0, 0.0, 0, 0.0, 0, 0, 0])
+    assert not model.free(inside_table)[0]
+    c = model.contacts(inside_table)
+    assert c and all(x["depth_m"] > 0 for x in c)
+    assert any(x["b"] == "table_top" and x["a"].startswith("patrolbot_katana::") for x in c)
+    assert [x["depth_m"] for x in c] == sorted((x["depth_m"] for x in c), reverse=True)
+    assert model.contacts(np.array([-1.6, 1.0, 0.3, 0, 0.4, -0.3, -0.3, 0])) == []

@@ -219,6 +219,10 @@ def test_a_collision_stops_the_run_and_keeps_the_colliding_trajectory(tmp_path):
     assert c["trajectory"] == s["executed_trajectories"] >= 1
     assert len(c["executed_path"]) >= 2
     np.testing.assert_allclose(c["executed_path"][-1], c["true_state"], atol=1e-4)  # sampled up to the stop
+    # what it hit: a robot geometry against the real world (table, object, ...)
+    assert c["contacts"] and all(x["depth_m"] > 0 for x in c["contacts"])
+    assert any(x["a"].startswith("patrolbot_katana::") or x["b"].startswith("patrolbot_katana::") for x in c["contacts"])
+    assert not any("W_box" in (x["a"], x["b"]) for x in c["contacts"])  # the truth has no W_box
     recs = [json.loads(x) for x in (tmp_path / "iterations.jsonl").read_text().splitlines()]
     assert len(recs) == s["scans"] == c["trajectory"]  # the scans before the colliding motion
     assert json.loads((tmp_path / "summary.json").read_text())["collision"] == c

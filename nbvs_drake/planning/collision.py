@@ -48,6 +48,24 @@ class CollisionModel:
         res = self.checker.CheckConfigsCollisionFree(list(pos), parallelize=parallelize and len(q) >= 64)
         return np.asarray(res, bool)
 
+    def contacts(self, q: np.ndarray) -> list[dict]:
+        """What touches what at the state q (8,): every pair of geometries in penetration
+        (Drake's point-pair query), as {"a", "b", "depth_m"}, deepest first. Names are the
+        geometries' (e.g. `patrolbot_katana::link5` and `chair6_back`, `table_top`, `object`);
+        descriptive only: `free` (the collision checker, with its filters) is the verdict."""
+        plant, sg = self.diagram.plant(), self.diagram.scene_graph()
+        if self._contact_context is None:
+            self._contact_context = self.diagram.CreateDefaultContext()
+        ctx = self._contact_context
+        plant.SetPositions(plant.GetMyMutableContextFromRoot(ctx), self.kin.to_positions(np.atleast_2d(q))[0])
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(ctx))
+        names = query.inspector().GetName
+        out = [{"a": names(p.id_A), "b": names(p.id_B), "depth_m": round(float(p.depth), 4)}
+               for p in query.ComputePointPairPenetration()]
+        return sorted(out, key=lambda c: -c["depth_m"])
+
+    _contact_context = None
+
     def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
         """Checks the states of a path and interpolated states in between (linear in q, so
         that no point of the robot moves more than about `max_step` between checks)."""

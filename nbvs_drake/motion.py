@@ -134,17 +134,6 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
 # --------------------------------------------------------------------------------------
 
 
-def _phase(delta: np.ndarray, vmax: np.ndarray, dt: float) -> np.ndarray:
-    """Constant-velocity controls covering `delta` (per control component) exactly, each
-    within its limit vmax; returns (n, NU) rows."""
-    delta = np.asarray(delta, float)
-    need = np.abs(delta) / (vmax * dt)
-    n = int(math.ceil(np.max(need) - 1e-9)) if np.any(delta != 0) else 0
-    if n == 0:
-        return np.zeros((0, NU))
-    return np.tile(delta / (n * dt), (n, 1))
-
-
 def _base_phases(q0, q1, rc: RobotConfig):
     """Turn-drive-turn for the in-place turning base, as (d_theta1, d_drive, d_theta2),
     choosing forward or backward driving by the smaller total rotation."""
@@ -160,8 +149,9 @@ def _base_phases(q0, q1, rc: RobotConfig):
 
 
 def _base_controls(ph, rc: RobotConfig) -> np.ndarray:
-    """The base's phases (turn, drive, turn) as constant-velocity controls: `_phase` of each,
-    in scalars (one component moves per phase; the same arithmetic, so the same numbers)."""
+    """The base's phases (turn, drive, turn) as constant-velocity controls: each phase in the
+    fewest steps that keep its one moving component (v or w_b) within its limit, covering
+    the phase exactly."""
     dt = rc.control_dt
     rows = []
     for k, val in enumerate(ph):
@@ -191,10 +181,9 @@ def _arm_controls(dq: np.ndarray, rc: RobotConfig, n_min: int = 0) -> np.ndarray
 TUCK_ARM = np.array([np.nan, math.pi / 2, 0.0, 0.0, np.nan])
 
 
-def _together(q0: np.ndarray, q1: np.ndarray, ph, rc: RobotConfig) -> np.ndarray:
-    """The arm moving during the base's turn-drive-turn phases `ph`."""
-    base = _base_controls(ph, rc)
-    tog = _arm_controls(q1[3:] - q0[3:], rc, n_min=len(base))
+def _together(base: np.ndarray, dq: np.ndarray, rc: RobotConfig) -> np.ndarray:
+    """The arm moving by dq during the base's controls `base`."""
+    tog = _arm_controls(dq, rc, n_min=len(base))
     tog[: len(base), :2] = base[:, :2]
     return tog
 
@@ -204,7 +193,7 @@ def steer_together(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarra
     the driving direction of the smaller total rotation."""
     q0 = np.asarray(q0, float)
     q1 = np.asarray(q1, float)
-    return _together(q0, q1, _base_phases(q0, q1, rc)[0], rc)
+    return _together(_base_controls(_base_phases(q0, q1, rc)[0], rc), q1[3:] - q0[3:], rc)
 
 
 def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np.ndarray]]:
@@ -218,7 +207,7 @@ def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np
     out = []
     for ph in _base_phases(q0, q1, rc):
         base = _base_controls(ph, rc)
-        out.append(("together", _together(q0, q1, ph, rc)))
+        out.append(("together", _together(base, dq, rc)))
         out.append(("arm_first", np.concatenate([_arm_controls(dq, rc), base])))
         out.append(("base_first", np.concatenate([base, _arm_controls(dq, rc)])))
         tuck = np.where(np.isnan(TUCK_ARM), q0[3:], TUCK_ARM)

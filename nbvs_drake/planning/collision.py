@@ -66,9 +66,12 @@ class CollisionModel:
 
     _contact_context = None
 
-    def path_free(self, states: np.ndarray, max_step: float = 0.02) -> bool:
+    def path_free(self, states: np.ndarray, max_step: float = 0.02, coarse_stride: int = 8) -> bool:
         """Checks the states of a path and interpolated states in between (linear in q, so
-        that no point of the robot moves more than about `max_step` between checks)."""
+        that no point of the robot moves more than about `max_step` between checks).
+        Every coarse_stride-th of those states is checked first: most paths that collide are
+        caught there, at a fraction of the checks, and a free path costs the same checks in
+        two batches. The verdict does not depend on it (coarse_stride 0: one pass)."""
         states = np.asarray(states, float)
         if len(states) == 1:
             return bool(self.free(states)[0])
@@ -79,14 +82,9 @@ class CollisionModel:
         seg = np.repeat(np.arange(len(subs)), subs)  # segment of each interpolated state
         frac = (np.arange(len(seg)) - np.repeat(np.cumsum(subs) - subs, subs) + 1) / np.repeat(subs, subs)
         allq = np.concatenate([states[:1], states[seg] + frac[:, None] * (states[seg + 1] - states[seg])])
-        if len(allq) <= 2 * self.coarse_stride:
+        if coarse_stride <= 0 or len(allq) <= 2 * coarse_stride:
             return bool(np.all(self.free(allq)))
-        # every coarse_stride-th state first: most paths that collide are caught there, at a
-        # fraction of the checks; a free path costs the same checks in two batches
         coarse = np.zeros(len(allq), bool)
-        coarse[:: self.coarse_stride] = True
+        coarse[::coarse_stride] = True
         coarse[-1] = True
         return bool(np.all(self.free(allq[coarse])) and np.all(self.free(allq[~coarse])))
-
-    #: spacing of path_free's first pass (in its interpolated states)
-    coarse_stride: int = 8

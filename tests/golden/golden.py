@@ -1,0 +1,87 @@
+"""Golden runs: the iteration records and summary of two pinned runs, with wall-clock times
+removed, so that a change meant to reorganise the code (not what it computes) is checked bit for
+bit. `python -m tests.golden.golden` (from the repository root) rewrites the files after a change
+that is meant to change the numbers; say so in the commit message.
+
+- default: the default scenario, seed 0, 12 scans (`make run`).
+- teapot_eu_mu_4: the teapot_eu_mu scenario, seed 1, mission.max_scans = 4.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+#: name -> (scenario, seed, overrides)
+RUNS = {
+    "default": (None, 0, ()),
+    "teapot_eu_mu_4": ("teapot_eu_mu", 1, ("mission.max_scans=4",)),
+}
+
+#: simulated (not wall-clock) durations whose names end in _s
+_SIMULATED = {"sim_time_s", "motion_sim_s"}
+
+
+def is_wall_clock(key: str) -> bool:
+    return key in ("times", "times_s") or (key.endswith("_s") and key not in _SIMULATED)
+
+
+def strip_times(obj):
+    """A copy of a JSON value without its wall-clock entries."""
+    if isinstance(obj, dict):
+        return {k: strip_times(v) for k, v in obj.items() if not is_wall_clock(k)}
+    if isinstance(obj, list):
+        return [strip_times(v) for v in obj]
+    return obj
+
+
+def load_run(out: Path) -> dict:
+    records = [json.loads(line) for line in (out / "iterations.jsonl").read_text().splitlines() if line]
+    return strip_times({"summary": json.loads((out / "summary.json").read_text()), "records": records})
+
+
+def differences(golden, new, path="") -> list[str]:
+    """Where `new` differs from `golden`: every key of golden must be in new with an equal
+    value (new keys are allowed: records may gain fields); lists must match element-wise."""
+    if isinstance(golden, dict):
+        if not isinstance(new, dict):
+            return [f"{path}: expected an object"]
+        out = []
+        for k, v in golden.items():
+            if k not in new:
+                out.append(f"{path}.{k}: missing")
+            else:
+                out += differences(v, new[k], f"{path}.{k}")
+        return out
+    if isinstance(golden, list):
+        if not isinstance(new, list) or len(new) != len(golden):
+            return [f"{path}: expected a list of {len(golden)}"]
+        return [d for i, (a, b) in enumerate(zip(golden, new)) for d in differences(a, b, f"{path}[{i}]")]
+    return [] if golden == new else [f"{path}: {golden!r} != {new!r}"]
+
+
+def golden_path(name: str) -> Path:
+    return HERE / f"{name}.json"
+
+
+def run(name: str, out: Path) -> dict:
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.mission import run_mission
+    scenario, seed, overrides = RUNS[name]
+    from nbvs_drake.resources import scenario_path  # noqa: F401 - built-in names
+    sc = load_scenario(scenario_path(scenario) if scenario else None, seed=seed, settings=overrides)
+    run_mission(sc, out, verbose=False)
+    return load_run(out)
+
+
+if __name__ == "__main__":
+    import sys
+    import tempfile
+    names = sys.argv[1:] or list(RUNS)
+    for n in names:
+        with tempfile.TemporaryDirectory() as tmp:
+            data = run(n, Path(tmp) / n)
+        golden_path(n).write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+        print("wrote", golden_path(n))

@@ -34,13 +34,32 @@ class RobotConfig:
 
 @dc.dataclass
 class ObjectConfig:
-    kind: str = "teapot"  #: "teapot" (Newell's patches) or "mesh"
+    """The object: mesh -> `up` -> `rpy_deg` -> `yaw_deg`, scaled, then set on the table
+    (lowest point on the table top, footprint centred at `xy`)."""
+    #: "teapot" (Newell's patches), "bunny" (the Stanford bunny, models/stanford_bunny.ply)
+    #: or "mesh" (the file `mesh`)
+    kind: str = "teapot"
     mesh: str = ""  #: OBJ/PLY/STL path (relative to the scenario file) when kind = mesh
-    size: float = 0.40  #: longest extent in metres after scaling (0: use `scale` as is)
+    #: longest side in metres of the mesh's own (unrotated) bounding box; 0: use `scale` as
+    #: is; -1: the kind's default (teapot 0.40, bunny 0.467 = the papers' scene bunny, mesh 0.40)
+    size: float = -1.0
     scale: float = 1.0  #: mesh units -> metres, used when size = 0
     xy: list[float] = dc.field(default_factory=lambda: [0.0, 0.0])  #: footprint centre on the table
-    yaw_deg: float = 0.0
+    #: the mesh's up axis: x, y, z, -x, -y or -z; "": the kind's (bunny y, teapot and mesh z).
+    #: The axes are turned cyclically (x -> y -> z -> x) until `up` is +z (y-up: the mesh's
+    #: (x, y, z) become the world's (y, z, x)); a negative axis is then turned 180 deg about x
+    up: str = ""
+    #: then a rotation about the world's fixed x, y, z axes, in that order (roll, pitch, yaw;
+    #: R = Rz(yaw) Ry(pitch) Rx(roll), Drake's RollPitchYaw), degrees
+    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    yaw_deg: float = 0.0  #: then a turn about the vertical, degrees
     tessellation: int = 12  #: teapot: subdivisions per Bezier patch side
+
+
+#: per-kind defaults of ObjectConfig.size (when -1) and .up (when "")
+OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up="y"),
+                "mesh": dict(size=0.40, up="z")}
+OBJECT_UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 
 
 @dc.dataclass
@@ -306,10 +325,17 @@ def validate(sc: Scenario) -> Scenario:
     _require(s.clutter in ("none", "chairs"), f"scene.clutter must be 'none' or 'chairs', got {s.clutter!r}")
     _require(s.gt_points >= 100, f"scene.gt_points must be >= 100, got {s.gt_points}")
     o = s.object
-    _require(o.kind in ("teapot", "mesh"), f"scene.object.kind must be 'teapot' or 'mesh', got {o.kind!r}")
+    _require(o.kind in OBJECT_KINDS,
+             f"scene.object.kind must be 'teapot', 'bunny' or 'mesh', got {o.kind!r}")
     _require(o.kind != "mesh" or o.mesh, "scene.object.kind is 'mesh' but scene.object.mesh is empty")
-    _require(o.size >= 0 and o.scale > 0,
-             f"scene.object.size must be >= 0 and scale > 0, got size {o.size}, scale {o.scale}")
+    _require(_finite(o.size) and (o.size >= 0 or o.size == -1),
+             f"scene.object.size must be > 0, 0 (use scale) or -1 (the kind's default), got {o.size}")
+    _require(_finite(o.scale) and o.scale > 0, f"scene.object.scale must be > 0, got {o.scale}")
+    _require(o.up in OBJECT_UP_AXES + ("",),
+             f"scene.object.up must be one of x, y, z, -x, -y, -z, got {o.up!r}")
+    _require(len(o.rpy_deg) == 3 and _finite(*o.rpy_deg),
+             f"scene.object.rpy_deg must be 3 finite numbers [roll, pitch, yaw] in degrees, got {o.rpy_deg}")
+    _require(_finite(o.yaw_deg), f"scene.object.yaw_deg must be finite, got {o.yaw_deg}")
     _require(len(o.xy) == 2, f"scene.object.xy must have 2 numbers, got {o.xy}")
     _require(o.tessellation >= 2, f"scene.object.tessellation must be >= 2, got {o.tessellation}")
 

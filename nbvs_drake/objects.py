@@ -1,5 +1,6 @@
 """The object to reconstruct: Newell's Utah teapot (tessellated from its 32 bicubic Bezier
-patches) or any OBJ/PLY/STL mesh, placed on the table; ground-truth surface samples."""
+patches), the Stanford bunny or any OBJ/PLY/STL mesh, oriented and placed on the table;
+ground-truth surface samples."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import MODELS_DIR
-from .config import Scenario
+from .config import OBJECT_KINDS, ObjectConfig, Scenario
 from .errors import MeshError, ScenarioError
+from .resources import model_path
 
 
 @dc.dataclass
@@ -55,7 +56,7 @@ class ObjectMesh:
 
 def load_teapot_patches(path: Path | None = None) -> np.ndarray:
     """Returns the control points of the 32 patches, shape (32, 4, 4, 3), Newell's units."""
-    path = Path(path or MODELS_DIR / "utah_teapot_newell.txt")
+    path = Path(path or model_path("utah_teapot_newell.txt"))
     lines = [ln.split() for ln in path.read_text().splitlines() if ln and not ln.startswith("#")]
     nv = int(lines[0][1])
     verts = np.array([[float(t) for t in ln] for ln in lines[1:1 + nv]])
@@ -97,6 +98,20 @@ def tessellate_teapot(n: int = 12) -> ObjectMesh:
 
 
 # --------------------------------------------------------------------------------------
+# Stanford bunny
+# --------------------------------------------------------------------------------------
+
+#: bun_zipper (Stanford 3D Scanning Repository) as binary PLY: 35,947 vertices (float32, the
+#: source's 6 decimals kept), 69,451 triangles, y up, its units (about 0.156 x 0.154 x 0.121)
+BUNNY_FILE = "stanford_bunny.ply"
+
+
+def load_bunny() -> ObjectMesh:
+    """The Stanford bunny in its file's frame and units (y up)."""
+    return load_mesh_file(model_path(BUNNY_FILE))
+
+
+# --------------------------------------------------------------------------------------
 # Meshes from files
 # --------------------------------------------------------------------------------------
 
@@ -127,12 +142,54 @@ def load_mesh_file(path: Path) -> ObjectMesh:
 # --------------------------------------------------------------------------------------
 
 
+def object_size(o: ObjectConfig) -> float:
+    """The longest side (m) the object is scaled to; 0: it is scaled by `scale`."""
+    return OBJECT_KINDS[o.kind]["size"] if o.size == -1 else o.size
+
+
+def object_up(o: ObjectConfig) -> str:
+    return o.up or OBJECT_KINDS[o.kind]["up"]
+
+
+def up_rotation(up: str) -> np.ndarray:
+    """The rotation taking the mesh axis `up` (x, y, z, -x, -y, -z) to world +z: the axes
+    are turned cyclically (x -> y -> z -> x) until `up` is z, and a negative axis is then
+    turned 180 deg about world x. y: mesh (x, y, z) -> world (y, z, x); x: -> (z, x, y)."""
+    axis = up.lstrip("-")
+    if up not in ("x", "y", "z", "-x", "-y", "-z"):
+        raise ScenarioError(f"scene.object.up must be one of x, y, z, -x, -y, -z, got {up!r}")
+    cycle = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0.0]])  # x -> y, y -> z, z -> x
+    R = np.linalg.matrix_power(cycle, {"z": 0, "y": 1, "x": 2}[axis])
+    if up.startswith("-"):
+        R = np.diag([1.0, -1.0, -1.0]) @ R
+    return R
+
+
+def rpy_rotation(rpy_deg) -> np.ndarray:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) (Drake's RollPitchYaw: about the fixed x, y, z axes)."""
+    r, p, y = np.radians(np.asarray(rpy_deg, float))
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def object_orientation(o: ObjectConfig) -> np.ndarray:
+    """The rotation applied before yaw_deg: rpy_deg after up."""
+    return rpy_rotation(o.rpy_deg) @ up_rotation(object_up(o))
+
+
 def build_object(sc: Scenario) -> ObjectMesh:
-    """The object of the scenario in the world frame: scaled, rotated by yaw, its footprint
+    """The object of the scenario in the world frame: scaled (so that the longest side of
+    the mesh's own bounding box is `size`, or by `scale`), turned so that its `up` axis
+    points up, rotated by `rpy_deg` and then by `yaw_deg` about the vertical, its footprint
     centred at `xy` and its lowest point on the table top. Raises if it leaves W_box."""
     o = sc.scene.object
     if o.kind == "teapot":
         mesh = tessellate_teapot(o.tessellation)
+    elif o.kind == "bunny":
+        mesh = load_bunny()
     else:
         p = Path(o.mesh)
         if not p.is_absolute():
@@ -140,10 +197,14 @@ def build_object(sc: Scenario) -> ObjectMesh:
         mesh = load_mesh_file(p)
     V = mesh.vertices.copy()
     lo, hi = V.min(axis=0), V.max(axis=0)
-    if o.size > 0:
-        V *= o.size / float(np.max(hi - lo))
+    size = object_size(o)
+    if size > 0:
+        V *= size / float(np.max(hi - lo))
     else:
         V *= o.scale
+    R = object_orientation(o)
+    if not np.array_equal(R, np.eye(3)):  # skipped when identity: z-up objects stay bit for bit
+        V = V @ R.T
     c, s = math.cos(math.radians(o.yaw_deg)), math.sin(math.radians(o.yaw_deg))
     V = V @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]).T
     lo, hi = V.min(axis=0), V.max(axis=0)

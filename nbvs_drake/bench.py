@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from .config import load_scenario
-from .mapping import kernels as K
+from .mapping import view_metrics as K
 from .mapping.occupancy import OccupancyMap
 from .planning.collision import CollisionModel
-from .planning.random_sampling import RandomSamplingPlanner
+from .planning import PlanRequest, make_planner
+from .planning.candidates import StateSampler
 from .robot import RobotKinematics
 from .scanning import ScanRenderer
 from .sensor import ray_directions
@@ -39,10 +40,9 @@ def bench_visibility(n_views: int = 400, trials: int = 20, per_trial: int = 200,
     m0 = OccupancyMap.for_scenario(sc)
     omap = r.integrate(m0, scan)
 
-    # candidate views: states whose director ray meets W_box (seed 000 §7.6 step 1)
+    # candidate views: states whose director ray meets W_box (Vasquez-Gomez et al. 2017 §7.6 step 1)
     sc.planner.n_candidates = max(n_views, trials * per_trial)
-    planner = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
-    states, _ = planner.generate(np.random.default_rng(seed))
+    states, _ = StateSampler(sc, kin).generate(np.random.default_rng(seed))
     X = kin.camera_poses(states)
     pos, rot = np.ascontiguousarray(X[:, :3, 3]), np.ascontiguousarray(X[:, :3, :3])
     dirs, tn, tf = ray_directions(sc.sensor, 1)
@@ -124,7 +124,6 @@ def bench_planning(seed: int = 0) -> dict:
     10,000 candidates (DU), ORT with k = 10,000, the expected utility with k = 500 over the
     kept candidates (Table 4 noise), and Drake configuration checks per second."""
     import copy
-    from .planning.ort import ORTPlanner
     sc = load_scenario()
     kin = RobotKinematics(sc.robot.urdf)
     with tempfile.TemporaryDirectory() as tmp:
@@ -135,24 +134,24 @@ def bench_planning(seed: int = 0) -> dict:
 
     def timed(planner):
         t = time.perf_counter()
-        res = planner.plan(omap, q0, np.random.default_rng(seed))
+        res = planner.plan(PlanRequest(omap, q0, np.random.default_rng(seed)))
         return time.perf_counter() - t, res
 
     du = copy.deepcopy(sc)
     du.planner.n_candidates = 10_000
     cm = CollisionModel(du, kin)
-    out["du_plan_s"], res = timed(RandomSamplingPlanner(du, kin, cm))
+    out["du_plan_s"], res = timed(make_planner(du, kin, cm))
     out["du_stages"], out["du_times_s"] = res.stages, res.times
     eu = copy.deepcopy(du)
     eu.planner.utility, eu.planner.eu_samples = "eu", 500
     eu.noise.sigma_v, eu.noise.sigma_w = 0.00165, 0.28  # Table 4
-    out["eu_plan_s_k500"], res = timed(RandomSamplingPlanner(eu, kin, cm))
+    out["eu_plan_s_k500"], res = timed(make_planner(eu, kin, cm))
     out["eu_times_s"], out["eu_feasible"] = res.times, res.stages.get("eu_feasible")
     ort = copy.deepcopy(sc)
     ort.planner.strategy, ort.planner.ort_vertices = "ort", 10_000
-    out["ort_plan_s"], res = timed(ORTPlanner(ort, kin, cm))
+    out["ort_plan_s"], res = timed(make_planner(ort, kin, cm))
     out["ort_times_s"], out["ort_status"] = res.times, res.status
-    qs = RandomSamplingPlanner(sc, kin, cm).sample_states(np.random.default_rng(seed), 20_000)
+    qs = StateSampler(sc, kin).sample_states(np.random.default_rng(seed), 20_000)
     t = _best_of(lambda: cm.free(qs), 2)
     out["config_checks_per_s"] = len(qs) / t
     return out
@@ -165,6 +164,7 @@ def bench_motion(seed: int = 0) -> dict:
     in the cluttered room from its start, most of them blocked), and one RRT Ext-Ext across
     the table there (500 vertices at most; seconds, iterations per second)."""
     from .motion import euler_step, rollout, steer_together
+    from .planning.motion_planner import MotionPlanner, ObstacleModel
     from .planning.rrt import Tree, rrt_ext_ext, weighted_dist
     rng = np.random.default_rng(seed)
     out = {}
@@ -200,9 +200,11 @@ def bench_motion(seed: int = 0) -> dict:
     sc = load_scenario("diagrams/cluttered_room.yaml")
     kin = RobotKinematics(sc.robot.urdf)
     cm = CollisionModel(sc, kin)
-    planner = RandomSamplingPlanner(sc, kin, cm)
+    sampler = StateSampler(sc, kin)
+    motion = MotionPlanner(sc, kin, sampler)
+    obstacles = ObstacleModel(cm)
     start = np.array(sc.robot.start)
-    ends = planner.sample_states(rng, 200)
+    ends = sampler.sample_states(rng, 200)
     edges = [rollout(start, c, sc.robot.control_dt) for c in (steer_together(start, e, sc.robot) for e in ends)]
     verdict = [cm.path_free(e) for e in edges]
     assert verdict == [cm.path_free(e, coarse_stride=0) for e in edges]
@@ -211,12 +213,12 @@ def bench_motion(seed: int = 0) -> dict:
     out["path_free_200_edges_s"] = {"one_pass": t_old, "coarse_first": t_new, "speedup": t_old / t_new,
                                     "free_edges": int(sum(verdict))}
 
-    far = planner.sample_states(rng, 2000)
+    far = sampler.sample_states(rng, 2000)
     far = far[far[:, 0] > 1.0]
     goal = far[np.flatnonzero(cm.free(far))[0]]  # a free state across the table
     t = time.perf_counter()
-    res = rrt_ext_ext(start, goal, sc.robot, np.asarray(sc.planner.weights), planner.sample_states,
-                      planner.path_free, kin.clip_arm, np.random.default_rng(seed), max_nodes=500,
+    res = rrt_ext_ext(start, goal, sc.robot, np.asarray(sc.planner.weights), sampler.sample_states,
+                      lambda s: motion.path_free(s, obstacles), kin.clip_arm, np.random.default_rng(seed), max_nodes=500,
                       step=sc.planner.tree_step)
     dt = time.perf_counter() - t
     out["rrt_cluttered_room"] = {"s": dt, "found": bool(res.found), "vertices": res.vertices,

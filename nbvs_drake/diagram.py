@@ -1,9 +1,14 @@
-"""Builds the mission diagram of a scenario (DESIGN.md):
+"""Builds the mission diagram of a scenario (docs/design.md). Data flows one way: camera ->
+localisation -> mapper -> planner -> controller -> plant:
 
  NBVSPlanner --controls--> NoisyVelocityController --u--> KinematicPlant (x, y, theta, q1..q5)
-      ^ map                                                     | positions
- OctreeMapper <--cloud-- DepthImageToPointCloud <-- RgbdSensor   v
-      ^ believed camera pose (CameraPose of the planner's belief)  MultibodyPositionToGeometryPose -> SceneGraph
+      ^ map, belief                                               | positions
+ OctreeMapper <-- registered scan -- Localisation <-- cloud, depth -- DepthImageToPointCloud
+   (maps only)       (ICP; owns the belief: state + covariance)          ^ DepthNoise <- RgbdSensor
+                                                      MultibodyPositionToGeometryPose -> SceneGraph
+The Localisation also reads the plan (its odometry: the belief between scans is the plan's
+predicted end) and the map of the earlier scans (the free space its registration must respect);
+the believed camera pose (CameraPose of the belief) places the cloud.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from .config import Scenario
 from .mapping.occupancy import OccupancyMap
 from .objects import ObjectMesh, build_object, ground_truth_points
 from .planning.collision import CollisionModel
-from .planning.random_sampling import RandomSamplingPlanner
+from .planning import make_planner
 from .robot import RobotKinematics, add_robot
 from .scene import add_environment
 
@@ -30,17 +35,6 @@ class MissionDiagram:
     mesh: ObjectMesh
     gt_points: np.ndarray
     plant: object  # kept alive: MultibodyPositionToGeometryPose refers to it
-
-
-def make_planner(sc: Scenario, kin: RobotKinematics, collision: CollisionModel):
-    """The planner implementation the scenario selects."""
-    if sc.planner.strategy == "ort":
-        from .planning.ort import ORTPlanner
-        return ORTPlanner(sc, kin, collision)
-    if sc.planner.strategy == "view_sampling":
-        from .planning.view_sampling import ViewSamplingPlanner
-        return ViewSamplingPlanner(sc, kin, collision)
-    return RandomSamplingPlanner(sc, kin, collision)
 
 
 def add_robot_and_scene(builder, sc: Scenario, object_obj: str | None):
@@ -74,6 +68,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     from .systems.collision_monitor import CollisionMonitor
     from .systems.depth_camera import CameraPose, add_depth_camera
     from .systems.kinematic_plant import KinematicPlant
+    from .systems.localisation import Localisation
     from .systems.mission_recorder import MissionRecorder
     from .systems.nbvs_planner import NBVSPlanner
     from .systems.noisy_velocity_controller import NoisyVelocityController
@@ -91,14 +86,15 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     builder = DiagramBuilder()
     scene_graph, plant, to_pose = add_robot_and_scene(builder, sc, str(obj_path))
 
-    planning_model = CollisionModel(sc, kin)
     truth_model = CollisionModel(sc, kin, object_obj=str(obj_path))
-    planner_impl = make_planner(sc, kin, planning_model)
+    planner_impl = make_planner(sc, kin)
 
     kplant = builder.AddNamedSystem("kinematic_plant", KinematicPlant(kin, q0, dt))
     ctrl = builder.AddNamedSystem("noisy_velocity_controller", NoisyVelocityController(sc.noise, sc.seed, dt))
-    rgbd, to_pc = add_depth_camera(builder, scene_graph, plant, sc.sensor)
+    camera = add_depth_camera(builder, scene_graph, plant, sc.sensor, sc.seed, dt)
+    rgbd, to_pc = camera.rgbd, camera.to_pc
     belief_pose = builder.AddNamedSystem("believed_camera_pose", CameraPose(kin))
+    loc = builder.AddNamedSystem("localisation", Localisation(sc, kin, q0, dt))
     mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
     planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
@@ -106,21 +102,22 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     builder.Connect(planner.GetOutputPort("controls"), ctrl.GetInputPort("controls"))
     builder.Connect(ctrl.GetOutputPort("velocity"), kplant.GetInputPort("velocity"))
     builder.Connect(kplant.GetOutputPort("positions"), to_pose.get_input_port())
-    builder.Connect(planner.GetOutputPort("believed_state"), belief_pose.GetInputPort("state"))
+    builder.Connect(loc.GetOutputPort("believed_state"), belief_pose.GetInputPort("state"))
     builder.Connect(belief_pose.GetOutputPort("camera_pose"), to_pc.camera_pose_input_port())
-    builder.Connect(to_pc.point_cloud_output_port(), mapper.GetInputPort("point_cloud"))
-    builder.Connect(belief_pose.GetOutputPort("camera_pose"), mapper.GetInputPort("camera_pose"))
-    builder.Connect(ctrl.GetOutputPort("status"), mapper.GetInputPort("controller_status"))
-    builder.Connect(rgbd.depth_image_32F_output_port(), mapper.GetInputPort("depth_image"))
+    builder.Connect(to_pc.point_cloud_output_port(), loc.GetInputPort("point_cloud"))
+    builder.Connect(camera.depth_image_port, loc.GetInputPort("depth_image"))
+    builder.Connect(ctrl.GetOutputPort("status"), loc.GetInputPort("controller_status"))
+    builder.Connect(planner.GetOutputPort("controls"), loc.GetInputPort("controls"))
+    builder.Connect(mapper.GetOutputPort("map"), loc.GetInputPort("map"))
+    builder.Connect(loc.GetOutputPort("registered_scan"), mapper.GetInputPort("registered_scan"))
     builder.Connect(mapper.GetOutputPort("map"), planner.GetInputPort("map"))
-    builder.Connect(mapper.GetOutputPort("pose_correction"), planner.GetInputPort("pose_correction"))
-    builder.Connect(mapper.GetOutputPort("pose_covariance"), planner.GetInputPort("pose_covariance"))
-    builder.Connect(planner.GetOutputPort("controls"), mapper.GetInputPort("controls"))
+    builder.Connect(loc.GetOutputPort("belief"), planner.GetInputPort("belief"))
     builder.Connect(kplant.GetOutputPort("state"), monitor.GetInputPort("state"))
     builder.Connect(ctrl.GetOutputPort("status"), monitor.GetInputPort("controller_status"))
 
     systems = dict(scene_graph=scene_graph, kinematic_plant=kplant, controller=ctrl, rgbd=rgbd,
-                   to_point_cloud=to_pc, mapper=mapper, planner=planner, monitor=monitor,
+                   depth_noise=camera.noise, to_point_cloud=to_pc, localisation=loc, mapper=mapper,
+                   planner=planner, monitor=monitor,
                    believed_camera_pose=belief_pose)
     if log is not None:
         rec = builder.AddNamedSystem("mission_recorder", MissionRecorder(

@@ -81,7 +81,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     def monitor(root_context):
         pctx = planner.GetMyContextFromRoot(root_context)
         stopped = planner.GetOutputPort("stopped").Eval(pctx)[0] > 0.5
-        if stopped and rec.written() >= planner.GetOutputPort("report").Eval(pctx).get("scan", 0):
+        if stopped and rec.written() >= planner.GetOutputPort("report").Eval(pctx).scan:
             return EventStatus.ReachedTermination(planner, "mission finished")
         if sc.mission.on_collision == "stop":
             counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(root_context))
@@ -95,7 +95,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     sim.AdvanceTo(sc.mission.max_sim_time)
     pctx = planner.GetMyContextFromRoot(ctx)
     report = planner.GetOutputPort("report").Eval(pctx)
-    stop_reason = "collision" if halted else (report.get("stop_reason") or "max_sim_time")
+    stop_reason = "collision" if halted else (report.stop_reason or "max_sim_time")
     mapper = md.systems["mapper"]
     omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(ctx))
     counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))

@@ -11,8 +11,7 @@ import numpy as np
 from scipy.special import ndtr, ndtri
 
 from .config import NoiseConfig, RobotConfig
-
-NQ, NU = 8, 7
+from .state import NQ, NU
 
 
 def wrap_angle(a):

@@ -13,7 +13,7 @@ from .config import Scenario, resolve_sensor
 from .mapping.occupancy import OccupancyMap
 from .objects import build_object
 from .robot import RobotKinematics
-from .sensor import ray_directions
+from .sensor import clean_scan, no_return_rays, ray_directions
 
 
 @dc.dataclass
@@ -38,7 +38,8 @@ class ScanRenderer:
         obj = build_object(sc).write_obj(Path(work_dir) / "object.obj")
         builder = DiagramBuilder()
         sg, plant, to_pose = add_robot_and_scene(builder, sc, str(obj))
-        self.rgbd, self.to_pc = add_depth_camera(builder, sg, plant, sc.sensor)
+        self.camera = add_depth_camera(builder, sg, plant, sc.sensor, sc.seed, sc.robot.control_dt)
+        self.to_pc = self.camera.to_pc
         pose = builder.AddSystem(CameraPose(self.kin))
         builder.Connect(pose.get_output_port(), self.to_pc.camera_pose_input_port())
         builder.ExportInput(to_pose.get_input_port(), "positions")
@@ -50,13 +51,13 @@ class ScanRenderer:
         self.z_far = resolve_sensor(sc.sensor).z_far
 
     def scan(self, q) -> Scan:
-        from .systems.octree_mapper import clean_scan, no_return_rays
         q = np.asarray(q, float)
         self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))
         self.diagram.get_input_port(1).FixValue(self.context, q)
         ctx_pc = self.to_pc.GetMyContextFromRoot(self.context)
         pts = clean_scan(self.to_pc.point_cloud_output_port().Eval(ctx_pc).xyzs())
-        depth = self.rgbd.depth_image_32F_output_port().Eval(self.rgbd.GetMyContextFromRoot(self.context)).data
+        noise = self.camera.noise
+        depth = self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data
         X = self.kin.camera_poses(q)[0]
         return Scan(X, pts, no_return_rays(depth, X, self.dirs, self.z_far))
 

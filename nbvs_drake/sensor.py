@@ -56,3 +56,22 @@ def axial_noise_sigma(sensor: SensorConfig, z: np.ndarray) -> np.ndarray:
     """sigma_z = a + b (z - 0.4)^2 (Kinect model of Nguyen et al. 2012; zero for the ToF preset)."""
     s = resolve_sensor(sensor)
     return s.noise_a + s.noise_b * (np.asarray(z) - 0.4) ** 2
+
+
+def clean_scan(points_xyz: np.ndarray) -> np.ndarray:
+    """(N, 3) finite returns of a (3, N) Drake point cloud: pixels with no return (+-inf) and
+    NaN depth are dropped, never passed to the map."""
+    P = np.asarray(points_xyz, float).T
+    return P[np.all(np.isfinite(P), axis=1)]
+
+
+def no_return_rays(depth: np.ndarray, X_WC: np.ndarray, dirs_cam: np.ndarray, z_far: float) -> np.ndarray:
+    """World-frame end points at the sensor's maximum range for the pixels with no return
+    (+inf depth: nothing within z_far). Integrated as free-space rays (OctoMap's max-range
+    insertion): they clear space but never mark a hit. NaN and too-close pixels are ignored."""
+    mask = np.isposinf(np.asarray(depth, float).reshape(-1))
+    d = dirs_cam[mask]
+    if len(d) == 0:
+        return np.zeros((0, 3))
+    p_cam = d * (z_far / d[:, 2])[:, None]
+    return p_cam @ X_WC[:3, :3].T + X_WC[:3, 3]

@@ -6,7 +6,7 @@ from pydrake.systems.primitives import ConstantVectorSource
 from nbvs_drake.config import Scenario
 from nbvs_drake.diagram import add_robot_and_scene
 from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera
-from nbvs_drake.systems.octree_mapper import clean_scan
+from nbvs_drake.sensor import clean_scan
 
 
 def _camera_diagram(kin, q):
@@ -15,7 +15,8 @@ def _camera_diagram(kin, q):
     sg, plant, to_pose = add_robot_and_scene(builder, sc, None)  # floor + table, no object
     src = builder.AddSystem(ConstantVectorSource(kin.to_positions(q)))
     builder.Connect(src.get_output_port(), to_pose.get_input_port())
-    rgbd, to_pc = add_depth_camera(builder, sg, plant, sc.sensor)
+    camera = add_depth_camera(builder, sg, plant, sc.sensor)
+    rgbd, to_pc = camera.rgbd, camera.to_pc
     pose = builder.AddSystem(CameraPose(kin))
     qsrc = builder.AddSystem(ConstantVectorSource(q))
     builder.Connect(qsrc.get_output_port(), pose.get_input_port())

@@ -1,13 +1,12 @@
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.math import RigidTransform
-from pydrake.perception import BaseField, Fields, PointCloud
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.sensors import ImageDepth32F
 
 from nbvs_drake.config import Scenario
 from nbvs_drake.mapping import FREE, OCCUPIED, UNKNOWN, OccupancyMap
-from nbvs_drake.systems.octree_mapper import OctreeMapper, clean_scan
+from nbvs_drake.systems.messages import RegisteredScan
+from nbvs_drake.systems.octree_mapper import OctreeMapper
 
 
 def _wall_scan():
@@ -58,37 +57,36 @@ def test_table_points_are_not_object_hits():
     assert m1.counts()["occupied"] == 1
 
 
-def test_mapper_system_scans_when_idle_and_drops_invalid_points():
+def test_mapper_system_integrates_each_registered_scan_once():
     sc = Scenario()
     mapper = OctreeMapper(sc, 0.1)
     sim = Simulator(mapper)
     ctx = sim.get_mutable_context()
     pts, X = _wall_scan()
-    pts = np.concatenate([pts, [[np.nan, 0, 0], [np.inf, np.inf, np.inf]]])
-    cloud = PointCloud(len(pts), Fields(BaseField.kXYZs))
-    cloud.mutable_xyzs()[:] = pts.T
-    assert len(clean_scan(cloud.xyzs())) == len(pts) - 2
-    mapper.GetInputPort("point_cloud").FixValue(ctx, AbstractValue.Make(cloud))
-    mapper.GetInputPort("camera_pose").FixValue(ctx, AbstractValue.Make(X))
-    mapper.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
-    status = mapper.GetInputPort("controller_status").FixValue(ctx, [0, 0, 0])  # plan 0, moving
+    port = mapper.GetInputPort("registered_scan").FixValue(ctx, AbstractValue.Make(RegisteredScan()))
     sim.AdvanceTo(0.25)
-    assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 0
-    status.GetMutableData().set_value(np.array([0.0, 0.0, 1.0]))  # idle: scan once
+    assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 0  # no scan yet
+    scan = RegisteredScan(1, X.translation(), pts, np.zeros((0, 3)), True, {"plan_id": 0})
+    port.GetMutableData().set_value(scan)
     sim.AdvanceTo(0.55)
     m = mapper.GetOutputPort("map").Eval(ctx)
     assert m.scan_count == 1
     assert m.counts()["occupied"] > 50
-    assert np.all(np.isfinite(m.logodds)) and np.all(np.isfinite(m.object_points))
     rep = mapper.GetOutputPort("scan_report").Eval(ctx)
-    assert rep.scan_index == 1 and rep.info["points"] == len(pts) - 2
-    sim.AdvanceTo(1.0)  # still idle on the same plan: no second scan
+    assert rep.scan_index == 1 and rep.info["points"] == len(pts) and rep.info["plan_id"] == 0
+    assert rep.info["integrated"] and rep.info["sensor_origin"] == list(X.translation())
+    sim.AdvanceTo(1.0)  # the same scan on the input: integrated once
     assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 1
+    # a scan whose registration failed is counted, not integrated
+    port.GetMutableData().set_value(RegisteredScan(2, X.translation(), pts + 0.3, np.zeros((0, 3)), False, {}))
+    sim.AdvanceTo(1.25)
+    m2 = mapper.GetOutputPort("map").Eval(ctx)
+    assert m2.scan_count == 2 and np.array_equal(m2.logodds, m.logodds)
+    assert not mapper.GetOutputPort("scan_report").Eval(ctx).info["integrated"]
 
 
 def test_no_return_pixels_clear_free_space():
-    from nbvs_drake.systems.octree_mapper import no_return_rays
-    from nbvs_drake.sensor import ray_directions
+    from nbvs_drake.sensor import no_return_rays, ray_directions
     sc = Scenario()
     dirs = ray_directions(sc.sensor, 1)[0]
     depth = np.full((144, 176), np.inf, np.float32)

@@ -5,24 +5,32 @@ import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
-from nbvs_drake.mapping import kernels as K
+from nbvs_drake.mapping import view_metrics as K
 from nbvs_drake.motion import path_length, rollout, steer, wrap_angle
-from nbvs_drake.planning.collision import CollisionModel
-from nbvs_drake.planning.random_sampling import RandomSamplingPlanner, director_ray_hits, registration_overlap
+from nbvs_drake.planning import PlanRequest, make_planner
+from nbvs_drake.planning.utility import ExpectedUtilityScore
+from nbvs_drake.planning.views import director_ray_hits, registration_overlap
+from nbvs_drake.systems.messages import Belief, PlanReport
 from nbvs_drake.systems.nbvs_planner import NBVSPlanner
+
+
+def _request(omap, q0, seed=0, cov=None):
+    return PlanRequest(omap, np.asarray(q0, float), np.random.default_rng(seed), cov)
 
 
 @pytest.fixture(scope="module")
 def planner(kin, first_scan_map):
     sc, _ = first_scan_map
+    sc = copy.deepcopy(sc)
     sc.planner.n_candidates = 1500
-    return RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
+    return make_planner(sc, kin)
 
 
 def test_filter_cascade_stages(planner, first_scan_map, kin):
     sc, omap = first_scan_map
+    sc = planner.sc
     q0 = np.array(sc.robot.start)
-    res = planner.plan(omap, q0, np.random.default_rng(0))
+    res = planner.plan(_request(omap, q0))
     assert res.status == "ok"
     st = res.stages
     # every stage keeps a subset of the previous one
@@ -31,16 +39,18 @@ def test_filter_cascade_stages(planner, first_scan_map, kin):
     assert st["top_k"] <= sc.planner.top_k
     # the chosen state: collision free, passes the registration filter, sees unknown space
     f = res.factors
-    assert planner.collision.free(res.q_goal)[0]
+    obstacles = planner.obstacles.for_map(omap)
+    assert obstacles.free(res.q_goal)[0]
     assert f["overlap"] > sc.planner.overlap_h and f["un_o"] > 0
-    assert res.utility == pytest.approx(f["pos"] * f["reg"] * f["sur"] * f["dist"])
+    assert f["metric"] == sc.planner.metric
+    assert res.utility == pytest.approx(f["pos"] * f["reg"] * f["info"] * f["dist"])
     assert f["dist"] == pytest.approx(1 / (1 + path_length(res.states, sc.planner.weights)))
     # its controls, replayed without noise, reach it exactly and stay collision free
     end = rollout(q0, res.controls, sc.robot.control_dt)[-1]
     np.testing.assert_allclose(end[:2], res.q_goal[:2], atol=1e-9)
     assert abs(wrap_angle(end[2] - res.q_goal[2])) < 1e-9
     np.testing.assert_allclose(end[3:], res.q_goal[3:], atol=1e-9)
-    assert planner.collision.path_free(res.states)
+    assert obstacles.collision.path_free(res.states)
     # the metrics of the chosen view agree with a fresh evaluation
     met = planner.evaluator.evaluate(omap, res.q_goal[None])
     assert met[0, K.M_UN_O] == f["un_o"]
@@ -86,12 +96,13 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     sim = Simulator(sys_)
     ctx = sim.get_mutable_context()
     port = sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
-    sys_.GetInputPort("pose_correction").FixValue(ctx, np.zeros(4))
+    sys_.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(Belief.exact(q0)))
     sim.AdvanceTo(0.05)
     tau = sys_.GetOutputPort("controls").Eval(ctx)
-    rep = sys_.GetOutputPort("report").Eval(ctx)
-    assert tau.plan_id == 1 and tau.m == rep["n_controls"] > 0
-    np.testing.assert_allclose(sys_.GetOutputPort("believed_state").Eval(ctx), tau.states[-1])
+    rep: PlanReport = sys_.GetOutputPort("report").Eval(ctx)
+    assert isinstance(rep, PlanReport) and rep.scan == 1 and rep.status == "ok" and rep.plan_id == 1
+    assert tau.plan_id == 1 and tau.m == rep.result["n_controls"] > 0
+    np.testing.assert_allclose(tau.states[0], q0)
     assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 0
     sim.AdvanceTo(0.35)  # same scan: no re-planning
     assert sys_.GetOutputPort("controls").Eval(ctx).plan_id == 1
@@ -101,47 +112,55 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
     port.GetMutableData().set_value(spent)
     sim.AdvanceTo(0.55)
     assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 1
-    assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "max_scans"
+    rep = sys_.GetOutputPort("report").Eval(ctx)
+    assert rep.stop_reason == "max_scans" and rep.to_json()["status"] == "stop"
 
 
-def _planner_system_after(sc, planner, omap, correction, covariance=None):
+def _planner_system_after(sc, planner, omap, belief: Belief):
     q0 = np.array(sc.robot.start)
     sys_ = NBVSPlanner(sc, planner, q0)
     ctx = sys_.CreateDefaultContext()
     sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
-    sys_.GetInputPort("pose_correction").FixValue(ctx, np.asarray(correction, float))
-    if covariance is not None:
-        sys_.GetInputPort("pose_covariance").FixValue(ctx, np.asarray(covariance, float).reshape(-1))
+    sys_.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(belief))
     sim = Simulator(sys_, ctx)
     sim.AdvanceTo(0.05)
     return sys_, sim.get_context(), q0
 
 
-def test_planner_corrects_its_belief_and_applies_the_stop_criteria(planner, first_scan_map):
+def _belief(q0, correction=(0.0, 0.0, 0.0), covariance=None):
+    from nbvs_drake.registration import Correction
+    q0 = np.asarray(q0, float)
+    cov = np.zeros((3, 3)) if covariance is None else np.asarray(covariance, float)
+    return Belief(1, q0, Correction(*correction).apply_state(q0), cov)
+
+
+def test_planner_plans_from_the_belief_and_applies_the_stop_criteria(planner, first_scan_map):
     from nbvs_drake.registration import Correction
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
-    # the registration's correction of scan 1 moves the belief before the stop test
+    q0 = np.array(sc.robot.start)
+    # the report carries both states of the belief the stop test and the plan start from
     sc.mission.stop_unknown_voxels = omap.unknown_count() + 1
-    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, [1, 0.05, -0.02, 0.1])
-    rep = sys_.GetOutputPort("report").Eval(ctx)
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, _belief(q0, (0.05, -0.02, 0.1)))
+    rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
     assert rep["stop_reason"] == "unknown_below_threshold"
     np.testing.assert_allclose(rep["corrected_state"], Correction(0.05, -0.02, 0.1).apply_state(q0), atol=1e-6)
     np.testing.assert_allclose(rep["believed_state"], q0, atol=1e-9)
-    np.testing.assert_allclose(sys_.GetOutputPort("believed_state").Eval(ctx), rep["corrected_state"], atol=1e-6)
-    # a correction published for another scan is not applied; the unknown test passes below it
-    sc.mission.stop_unknown_voxels = omap.unknown_count()
+    # the plan starts at the corrected state
+    sc.mission.stop_unknown_voxels = 0
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, _belief(q0, (0.05, -0.02, 0.1)))
+    tau = sys_.GetOutputPort("controls").Eval(ctx)
+    np.testing.assert_allclose(tau.states[0], Correction(0.05, -0.02, 0.1).apply_state(q0))
     sc.mission.stop_min_surface = 0.99  # no view sees 99 % of the unknown voxels
-    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, [7, 0.05, -0.02, 0.1])
-    rep = sys_.GetOutputPort("report").Eval(ctx)
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, _belief(q0))
+    rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
     assert rep["stop_reason"] == "surface_below_threshold" and rep["status"] == "ok"
-    assert 0 < rep["factors"]["sur"] < 0.99
-    np.testing.assert_allclose(rep["corrected_state"], q0, atol=1e-9)
+    assert 0 < rep["factors"]["info"] < 0.99
     assert sys_.GetOutputPort("controls").Eval(ctx).plan_id == 0  # nothing is executed
     sc.mission.stop_min_surface = 0.0
     sc.mission.stop_min_utility = 0.5
-    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, [0, 0, 0, 0])
-    assert sys_.GetOutputPort("report").Eval(ctx)["stop_reason"] == "score_below_threshold"
+    sys_, ctx, q0 = _planner_system_after(sc, planner, omap, _belief(q0))
+    assert sys_.GetOutputPort("report").Eval(ctx).stop_reason == "score_below_threshold"
 
 
 def test_planner_with_expected_utility(kin, first_scan_map):
@@ -152,8 +171,8 @@ def test_planner_with_expected_utility(kin, first_scan_map):
     sc.planner.utility = "eu"
     sc.planner.eu_samples = 100
     sc.noise.sigma_v = sc.noise.sigma_w = 0.0
-    pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
-    res = pl.plan(omap, np.array(sc.robot.start), np.random.default_rng(0))
+    pl = make_planner(sc, kin)
+    res = pl.plan(_request(omap, sc.robot.start))
     assert res.status == "ok"
     eu = res.factors["eu"]
     assert eu["feasible"] and eu["k"] == 100 and eu["collided_rollouts"] == 0
@@ -162,17 +181,20 @@ def test_planner_with_expected_utility(kin, first_scan_map):
 
 
 def test_rollout_utility_with_and_without_the_registration_factor(planner, first_scan_map):
-    """state_utility: with reg (seed 000's g) a state whose simulated scan overlaps the
-    known surface by h or less scores 0; without it (planner.eu_rollout_registration:
-    false) every state keeps sur * dist. States that pass the filter score the same."""
+    """state_utility: with reg (Vasquez-Gomez et al. 2017's g) a state whose simulated scan
+    overlaps the known surface by h or less scores 0; without it
+    (planner.eu_rollout_registration: false) every state keeps info * dist. States that pass
+    the filter score the same."""
     sc, omap = first_scan_map
-    q, _ = planner.generate(np.random.default_rng(3), omap)  # states that look at W_box
-    q = q[planner.collision.free(q)][:400]
+    sc = planner.sc
+    q, _ = planner.generator.generate(np.random.default_rng(3), omap)  # states that look at W_box
+    q = q[planner.obstacles.for_map(omap).free(q)][:400]
     un_total = omap.unknown_count()
-    with_reg = planner.state_utility(omap, q, un_total, 0.5)
-    without = planner.state_utility(omap, q, un_total, 0.5, registration=False)
+    eu = ExpectedUtilityScore(sc, planner.evaluator, planner.motion, sc.planner.overlap_h)
+    with_reg = eu.state_utility(omap, q, un_total, 0.5)
+    without = eu.state_utility(omap, q, un_total, 0.5, registration=False)
     met = planner.evaluator.evaluate(omap, q)
-    passes = registration_overlap(met) > planner.overlap_threshold()
+    passes = registration_overlap(met) > sc.planner.overlap_h
     sur = planner.evaluator.information(omap, q, met, sc.planner.metric, un_total)
     np.testing.assert_allclose(without, 0.5 * sur)
     np.testing.assert_allclose(with_reg, np.where(passes, 0.5 * sur, 0.0))
@@ -180,7 +202,7 @@ def test_rollout_utility_with_and_without_the_registration_factor(planner, first
 
 
 def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin, first_scan_map):
-    """The mapper's pose_covariance (a scan that could not be registered leaves the belief
+    """The belief's covariance (a scan that could not be registered leaves the belief
     uncertain) reaches the EU: with exact controls the rollouts spread only through the start,
     so the chosen plan's utilities vary and its report gives the start's sigmas."""
     sc, omap = first_scan_map
@@ -191,14 +213,15 @@ def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin
     sc.planner.eu_weighting = "mean"
     sc.planner.eu_max_collision_rate = 0.5
     sc.noise.sigma_v = sc.noise.sigma_w = 0.0
-    pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
-    sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4), np.diag([1e-4, 1e-4, 0.2 ** 2]))
-    rep = sys_.GetOutputPort("report").Eval(ctx)
+    pl = make_planner(sc, kin)
+    q0 = np.array(sc.robot.start)
+    sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(q0, covariance=np.diag([1e-4, 1e-4, 0.2 ** 2])))
+    rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
     assert rep["status"] == "ok" and rep["start_sigma"] == pytest.approx([0.01, 0.01, 0.2])
     assert rep["factors"]["eu"]["g_std"] > 0 and rep["utility"] < rep["factors"]["du"]
     # a zero covariance (the last scan registered) is an exact start: EU = DU
-    sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4), np.zeros((3, 3)))
-    rep = sys_.GetOutputPort("report").Eval(ctx)
+    sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(q0))
+    rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
     assert "start_sigma" not in rep and rep["utility"] == pytest.approx(rep["factors"]["du"], rel=1e-9)
 
 
@@ -213,9 +236,36 @@ def test_no_view_feasible_under_the_noise_stops_the_run_and_says_why(kin, first_
     sc.planner.eu_samples = 100
     sc.planner.eu_max_collision_rate = 0.0
     sc.noise.sigma_v, sc.noise.sigma_w = 1.0, 4.0
-    pl = RandomSamplingPlanner(sc, kin, CollisionModel(sc, kin))
-    sys_, ctx, _ = _planner_system_after(sc, pl, omap, np.zeros(4))
-    rep = sys_.GetOutputPort("report").Eval(ctx)
+    pl = make_planner(sc, kin)
+    sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(sc.robot.start))
+    rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
     assert rep["status"] == "no_feasible" and rep["stop_reason"] == "no_feasible_under_noise"
     assert rep["stages"]["with_path"] > 0 and rep["stages"]["eu_feasible"] == 0
     assert sys_.GetOutputPort("stopped").Eval(ctx)[0] == 1.0
+
+
+def test_ort_with_the_expected_utility(kin, first_scan_map):
+    """ORT ranks its vertices by g and scores the best top_k tree paths by the expected
+    utility: the chosen vertex is feasible under the noise and its report carries the EU."""
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.strategy = "ort"
+    sc.planner.ort_vertices = 300
+    sc.planner.utility = "eu"
+    sc.planner.eu_samples = 60
+    sc.planner.eu_max_collision_rate = 0.05
+    sc.planner.top_k = 5
+    res = make_planner(sc, kin).plan(_request(omap, sc.robot.start))
+    assert res.status == "ok" and res.path_kind == "ort"
+    assert res.factors["eu"]["feasible"] and res.factors["eu"]["k"] == 60
+    assert res.utility == res.factors["eu"]["eu"] <= res.factors["du"] + 1e-12
+    assert res.stages["eu_feasible"] >= 1 and len(res.candidates) >= 1
+
+
+def test_view_sampling_has_no_registration_filter(kin, first_scan_map):
+    sc, _ = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.strategy = "view_sampling"
+    assert make_planner(sc, kin).overlap_h is None
+    sc.planner.strategy = "random_sampling"
+    assert make_planner(sc, kin).overlap_h == sc.planner.overlap_h

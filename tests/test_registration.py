@@ -1,10 +1,10 @@
 """Scan registration and re-localisation: the planar MAP ICP (plain functions) and the
-OctreeMapper system correcting its scan and publishing the pose correction."""
+Localisation system registering each scan, correcting the belief it owns and handing the
+registered scan to the OctreeMapper."""
 
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
-from pydrake.math import RigidTransform
 from pydrake.perception import BaseField, Fields, PointCloud
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageDepth32F
@@ -163,84 +163,102 @@ def test_environment_model_has_the_table_edges_with_normals():
     assert len(merged.points) == len(m.points) + 2 and np.all(merged.normals[-2:] == 0)
 
 
-def test_mapper_registers_the_scan_and_publishes_the_correction(renderer):
+def _localisation_and_mapper(sc, kin, q0):
+    """A diagram of Localisation feeding an OctreeMapper (whose map it reads back), with the
+    camera's inputs exported: point_cloud, depth_image, controller_status, controls."""
+    from pydrake.systems.framework import DiagramBuilder
+    from nbvs_drake.systems.localisation import Localisation
+    b = DiagramBuilder()
+    loc = b.AddNamedSystem("localisation", Localisation(sc, kin, q0, 0.1))
+    mapper = b.AddNamedSystem("octree_mapper", OctreeMapper(sc, 0.1))
+    b.Connect(loc.GetOutputPort("registered_scan"), mapper.GetInputPort("registered_scan"))
+    b.Connect(mapper.GetOutputPort("map"), loc.GetInputPort("map"))
+    for name in ("point_cloud", "depth_image", "controller_status", "controls"):
+        b.ExportInput(loc.GetInputPort(name), name)
+    d = b.Build()
+    sim = Simulator(d)
+    ctx = sim.get_mutable_context()
+    ports = {name: d.GetInputPort(name) for name in ("point_cloud", "depth_image", "controller_status", "controls")}
+    return loc, mapper, sim, ctx, ports
+
+
+def _cloud(P):
+    c = PointCloud(len(P), Fields(BaseField.kXYZs))
+    c.mutable_xyzs()[:] = np.asarray(P).T
+    return c
+
+
+def _first_scan_then_plan(sc, r, q0, U, states, first_points):
+    """Scan 1 at the start, then plan 1 (U, states) published: the belief predicts its end."""
+    loc, mapper, sim, ctx, ports = _localisation_and_mapper(sc, r.kin, q0)
+    pc = ports["point_cloud"].FixValue(ctx, AbstractValue.Make(_cloud(first_points)))
+    ports["depth_image"].FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
+    tau = ports["controls"].FixValue(ctx, AbstractValue.Make(ControlSequence.empty(q0)))
+    status = ports["controller_status"].FixValue(ctx, [0, 0, 1])
+    sim.AdvanceTo(0.05)
+    mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
+    assert mapper.GetOutputPort("map").Eval(mctx).scan_count == 1
+    b1 = loc.GetOutputPort("belief").Eval(lctx)
+    assert b1.scan == 1 and np.array_equal(b1.state, q0) and not np.any(b1.covariance)
+    tau.GetMutableData().set_value(ControlSequence(1, 0.1, U, states))
+    status.GetMutableData().set_value(np.array([1.0, 0.0, 0.0]))  # plan 1 executing
+    sim.AdvanceTo(0.15)
+    np.testing.assert_array_equal(loc.GetOutputPort("believed_state").Eval(lctx), states[-1])
+    return loc, mapper, sim, ctx, pc, status
+
+
+def test_localisation_registers_the_scan_and_corrects_the_belief(renderer):
     sc, r, s1 = renderer
     for draw in range(20):  # a noisy draw after which the object is still in view
         q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, draw, 0.4)
         above = P2[:, 2] > sc.scene.table_height + 0.02
         if np.count_nonzero(above & region_mask(sc, P2, RegistrationConfig())) > 2000:
             break
-    mapper = OctreeMapper(sc, 0.1)
-    sim = Simulator(mapper)
-    ctx = sim.get_mutable_context()
-
-    def cloud(P):
-        c = PointCloud(len(P), Fields(BaseField.kXYZs))
-        c.mutable_xyzs()[:] = P.T
-        return AbstractValue.Make(c)
-
-    pc = mapper.GetInputPort("point_cloud").FixValue(ctx, cloud(s1.points))
-    pose = mapper.GetInputPort("camera_pose").FixValue(ctx, AbstractValue.Make(RigidTransform(r.kin.camera_poses(q0)[0])))
-    mapper.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
-    tau = mapper.GetInputPort("controls").FixValue(ctx, AbstractValue.Make(ControlSequence.empty(q0)))
-    status = mapper.GetInputPort("controller_status").FixValue(ctx, [0, 0, 1])
-    sim.AdvanceTo(0.05)
-    assert mapper.GetOutputPort("map").Eval(ctx).scan_count == 1
-    assert list(mapper.GetOutputPort("pose_correction").Eval(ctx)) == [1, 0, 0, 0]
-    m1 = mapper.GetOutputPort("map").Eval(ctx)
-    pc.GetMutableData().set_value(cloud(P2).get_value())
-    pose.GetMutableData().set_value(RigidTransform(Xb))
-    tau.GetMutableData().set_value(ControlSequence(1, 0.1, U, states))
-    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
-    sim.AdvanceTo(0.15)
-    corr = mapper.GetOutputPort("pose_correction").Eval(ctx)
-    assert corr[0] == 2
-    rep = mapper.GetOutputPort("scan_report").Eval(ctx).info
-    assert rep["icp"]["applied"] and rep["register_s"] > 0
-    assert not np.any(mapper.GetOutputPort("pose_covariance").Eval(ctx))  # registered: belief reset
-    # the mapper's result is the registration's (same prior draw: seed, 13, scan 2)
+    loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
+    mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
+    m1 = mapper.GetOutputPort("map").Eval(mctx)
+    pc.GetMutableData().set_value(_cloud(P2))
+    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))  # plan 1 done: scan 2
+    sim.AdvanceTo(0.25)
+    assert mapper.GetOutputPort("map").Eval(mctx).scan_count == 2  # integrated at the same tick
+    belief = loc.GetOutputPort("belief").Eval(lctx)
+    rep = mapper.GetOutputPort("scan_report").Eval(mctx).info
+    assert belief.scan == 2 and rep["icp"]["applied"] and rep["register_s"] > 0
+    assert not np.any(belief.covariance)  # registered: belief reset
+    np.testing.assert_array_equal(belief.dead_reckoned, qb)
+    # the result is the registration's (same prior draw: seed, 13, scan 2)
     cfg = RegistrationConfig()
     C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng([sc.seed, 13, 2]))
     res = register_scan(P2[region_mask(sc, P2, cfg)],
                         environment_model(sc, cfg).merged(s1.points[region_mask(sc, s1.points, cfg)], cfg), C, cfg,
                         free_at=lambda X: m1.free_hits(X, sc.mapper.table_clearance),
                         view=ScanView(Xb[:3, 3], P2, KnownSolids.of(sc)))
-    np.testing.assert_allclose(corr[1:], [res.correction.dx, res.correction.dy, res.correction.dyaw], atol=1e-9)
+    np.testing.assert_allclose(belief.state, res.correction.apply_state(qb), atol=1e-12)
+    assert state_error(qt, belief.state) < state_error(qt, qb)  # closer to the truth
     # the scan went into the map at the corrected camera pose
-    np.testing.assert_allclose(rep["sensor_origin"], Correction(*corr[1:]).apply_pose(Xb)[:3, 3], atol=1e-9)
+    np.testing.assert_allclose(rep["sensor_origin"], res.correction.apply_pose(Xb)[:3, 3], atol=1e-9)
 
 
-def test_mapper_skips_a_scan_it_cannot_register(renderer):
+def test_localisation_holds_back_a_scan_it_cannot_register(renderer):
     """A scan with the object out of view (too few points to register) is counted but not
-    integrated, and its plan's uncertainty carries over into the next prior."""
+    integrated, and its plan's uncertainty carries over into the belief's covariance (the
+    next prior, and the planner's expected utility)."""
     sc, r, s1 = renderer
     q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, 0, 0.4)
-    mapper = OctreeMapper(sc, 0.1)
-    sim = Simulator(mapper)
-    ctx = sim.get_mutable_context()
-    cloud = PointCloud(len(s1.points), Fields(BaseField.kXYZs))
-    cloud.mutable_xyzs()[:] = s1.points.T
-    pc = mapper.GetInputPort("point_cloud").FixValue(ctx, AbstractValue.Make(cloud))
-    mapper.GetInputPort("camera_pose").FixValue(ctx, AbstractValue.Make(RigidTransform(r.kin.camera_poses(q0)[0])))
-    mapper.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(ImageDepth32F(176, 144, 1.0)))
-    tau = mapper.GetInputPort("controls").FixValue(ctx, AbstractValue.Make(ControlSequence.empty(q0)))
-    status = mapper.GetInputPort("controller_status").FixValue(ctx, [0, 0, 1])
-    sim.AdvanceTo(0.05)
-    m1 = mapper.GetOutputPort("map").Eval(ctx)
+    loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
+    mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
+    m1 = mapper.GetOutputPort("map").Eval(mctx)
     far = P2[~region_mask(sc, P2, RegistrationConfig())][:500]  # nothing of the table or object
-    c2 = PointCloud(len(far), Fields(BaseField.kXYZs))
-    c2.mutable_xyzs()[:] = far.T
-    pc.GetMutableData().set_value(c2)
-    tau.GetMutableData().set_value(ControlSequence(1, 0.1, U, states))
+    pc.GetMutableData().set_value(_cloud(far))
     status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
-    sim.AdvanceTo(0.15)
-    m2 = mapper.GetOutputPort("map").Eval(ctx)
-    rep = mapper.GetOutputPort("scan_report").Eval(ctx).info
+    sim.AdvanceTo(0.25)
+    m2 = mapper.GetOutputPort("map").Eval(mctx)
+    rep = mapper.GetOutputPort("scan_report").Eval(mctx).info
     assert m2.scan_count == 2 and rep["integrated"] is False and rep["icp"]["reason"] == "too_few_points"
     np.testing.assert_array_equal(m2.logodds, m1.logodds)
-    assert list(mapper.GetOutputPort("pose_correction").Eval(ctx)) == [2, 0, 0, 0]
-    pending = mapper.GetOutputPort("pose_covariance").Eval(ctx).reshape(3, 3)
-    np.testing.assert_array_equal(pending, ctx.get_discrete_state(2).get_value().reshape(3, 3))
+    belief = loc.GetOutputPort("belief").Eval(lctx)
+    np.testing.assert_array_equal(belief.state, qb)  # odometry kept
+    pending = belief.covariance
     assert pending[2, 2] > 0.01  # the heading variance of the plan carries over, for the planner too
     np.testing.assert_allclose(pending, pending.T)
     assert np.all(np.linalg.eigvalsh(pending) > 0)

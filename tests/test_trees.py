@@ -81,31 +81,32 @@ def test_tree_edges_are_the_first_steering_sequence():
 
 
 def test_ort_returns_a_vertex_at_least_as_good_as_the_roots_children(kin, first_scan_map):
-    from nbvs_drake.planning.collision import CollisionModel
-    from nbvs_drake.planning.ort import ORTPlanner
+    from nbvs_drake.planning import PlanRequest, make_planner
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
+    sc.planner.strategy = "ort"
     sc.planner.ort_vertices = 300
-    pl = ORTPlanner(sc, kin, CollisionModel(sc, kin))
-    res = pl.plan(omap, np.array(sc.robot.start), np.random.default_rng(1))
+    pl = make_planner(sc, kin)
+    res = pl.plan(PlanRequest(omap, np.array(sc.robot.start), np.random.default_rng(1)))
     assert res.stages["vertices"] == 300
     assert res.status == "ok"
-    assert res.utility >= res.factors["best_root_child"]
+    assert res.utility >= res.stages["best_root_child"]
     assert res.utility == pytest.approx(res.factors["info"] * res.factors["dist"])
     end = rollout(np.array(sc.robot.start), res.controls, sc.robot.control_dt)[-1]
     np.testing.assert_allclose(end, res.q_goal, atol=1e-9)
-    assert pl.collision.path_free(rollout(np.array(sc.robot.start), res.controls, sc.robot.control_dt))
+    assert pl.obstacles.for_map(omap).collision.path_free(rollout(np.array(sc.robot.start), res.controls,
+                                                                    sc.robot.control_dt))
 
 
 def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
     from nbvs_drake.mapping.seed001 import unknown_clusters
-    from nbvs_drake.planning.collision import CollisionModel
-    from nbvs_drake.planning.view_sampling import ViewSamplingPlanner
+    from nbvs_drake.planning import PlanRequest, make_planner
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
+    sc.planner.strategy = "view_sampling"
     sc.planner.view_poses = 20
-    pl = ViewSamplingPlanner(sc, kin, CollisionModel(sc, kin))
-    q, tried = pl.generate(np.random.default_rng(3), omap)
+    pl = make_planner(sc, kin)
+    q, tried = pl.generator.generate(np.random.default_rng(3), omap)
     assert tried >= 20 and len(q) >= 5
     assert np.all(kin.arm_within_limits(q))
     _, centroids, _ = unknown_clusters(omap.in_wbox() & omap.unknown_mask(), omap.spec.centers())
@@ -117,5 +118,5 @@ def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
         off = np.linalg.norm(v - along[:, None] * z, axis=1)
         # some centroid lies on the optical axis within the IK tolerances (5 deg, 1 cm)
         assert np.any((along > 0) & (off <= along * np.tan(np.radians(5.0)) + 0.012))
-    res = pl.plan(omap, np.array(sc.robot.start), np.random.default_rng(3))
+    res = pl.plan(PlanRequest(omap, np.array(sc.robot.start), np.random.default_rng(3)))
     assert res.status == "ok" and res.stages["director_ray"] == len(q)

@@ -1,0 +1,36 @@
+"""Next-best-view/state planning. Every strategy implements `Planner.plan(PlanRequest) ->
+PlanResult` (planning.interface) by composing shared parts: candidate generation
+(planning.candidates, planning.view_sampling), the view evaluator (planning.views), the
+per-plan obstacles and the motion planner (planning.motion_planner) and the utility strategy
+(planning.utility: deterministic or expected)."""
+
+from __future__ import annotations
+
+from .interface import Planner, PlanRequest, PlanResult  # noqa: F401
+
+
+def make_planner(sc, kin, wbox_model=None) -> "Planner":
+    """The strategy the scenario selects (planner.strategy), with the utility it selects
+    (planner.utility). wbox_model: an existing CollisionModel of the known environment with
+    W_box (built when None and needed)."""
+    from .candidates import StateSampler
+    from .motion_planner import MotionPlanner, PlanningObstacles
+    from .utility import make_utility
+    from .views import ViewEvaluator
+
+    p = sc.planner
+    sampler = StateSampler(sc, kin)
+    evaluator = ViewEvaluator(kin, sc)
+    obstacles = PlanningObstacles(sc, kin, wbox_model)
+    motion = MotionPlanner(sc, kin, sampler)
+    overlap_h = None if p.strategy == "view_sampling" else p.overlap_h
+    utility = make_utility(sc, evaluator, motion, overlap_h)
+    if p.strategy == "ort":
+        from .ort import ORTPlanner
+        return ORTPlanner(sc, sampler, evaluator, obstacles, motion, utility, overlap_h)
+    from .random_sampling import RandomSamplingPlanner
+    generator = sampler
+    if p.strategy == "view_sampling":
+        from .view_sampling import ClusterViewGenerator
+        generator = ClusterViewGenerator(sc, kin, sampler)
+    return RandomSamplingPlanner(sc, generator, evaluator, obstacles, motion, utility, overlap_h)

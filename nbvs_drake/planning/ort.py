@@ -1,6 +1,10 @@
-"""The Object Reconstruction Tree (seed 003, Algorithms 2-3): a tree grown from the current
-state like an RRT for k vertices; every vertex is evaluated with the utility (its distance
-factor from the tree path); the best vertex is the NBVS and its tree path the trajectory."""
+"""The Object Reconstruction Tree (the ORT paper, Vasquez-Gomez et al. 2018, Algorithms 2-3): a
+tree grown from the believed state like an RRT for k vertices, towards random states that look
+at W_box; every vertex is scored with the utility g = reg * info * dist (its distance factor
+from the tree path); the best vertex is the NBVS and its tree path the trajectory. With
+planner.utility "eu" the vertices are ranked by g and the best planner.top_k at a time are
+scored by the expected utility of their tree paths (Vasquez-Gomez et al. 2017, Algorithm 1),
+as random sampling does with its ranked candidates."""
 
 from __future__ import annotations
 
@@ -8,49 +12,51 @@ import time
 
 import numpy as np
 
-from ..mapping import kernels as K
-from ..mapping.occupancy import OccupancyMap
+from ..config import Scenario
+from ..mapping import view_metrics as K
 from ..motion import rollout
-from .random_sampling import PlanResult, RandomSamplingPlanner, director_ray_hits, registration_overlap
+from .candidates import StateSampler
+from .interface import PlanRequest, PlanResult
+from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
 from .rrt import Tree, extend
+from .utility import select_best
+from .views import ViewEvaluator, registration_overlap
 
 
-class ORTPlanner(RandomSamplingPlanner):
-    """Shares the state sampler, collision model and view evaluator of random sampling. The
-    vertices are evaluated in one batch after the tree is grown: a vertex's evaluation does
-    not steer the growth, so this equals evaluating each vertex as it is added."""
+class ORTPlanner:
+    """The vertices are evaluated in one batch after the tree is grown: a vertex's evaluation
+    does not steer the growth, so this equals evaluating each vertex as it is added."""
 
-    def targets(self, rng: np.random.Generator):
-        """Random states whose director ray meets W_box (seed 000 §7.6 step 1): the tree grows
-        towards states that look at the object (seed 003's proposed bias to the view space)."""
-        bmin, bmax = self.sc.scene.bbox_min, self.sc.scene.bbox_max
-        while True:
-            batch = self.sample_states(rng, 4096)
-            ok = director_ray_hits(self.kin.camera_poses(batch), bmin, bmax, self.z_near, self.z_far)
-            yield from batch[ok]
+    def __init__(self, sc: Scenario, sampler: StateSampler, evaluator: ViewEvaluator, obstacles: PlanningObstacles,
+                 motion: MotionPlanner, utility, overlap_h: float):
+        self.sc = sc
+        self.sampler = sampler
+        self.evaluator = evaluator
+        self.obstacles = obstacles
+        self.motion = motion
+        self.utility = utility
+        self.overlap_h = overlap_h
 
-    def tree_path_free(self, states: np.ndarray) -> bool:
-        """Tree edges are checked at 4 cm resolution."""
-        return self.path_free(states, max_step=0.04)
-
-    def grow(self, q_current: np.ndarray, rng: np.random.Generator) -> tuple[Tree, int]:
+    def grow(self, q_current: np.ndarray, rng: np.random.Generator, obstacles: ObstacleModel) -> tuple[Tree, int]:
         p = self.sc.planner
         w = np.asarray(p.weights)
         tree = Tree(np.asarray(q_current, float), p.ort_vertices)
         it = 0
-        targets = self.targets(rng)
+        targets = self.sampler.targets(rng)
+        path_free = lambda s: self.motion.tree_path_free(s, obstacles)  # noqa: E731
         while tree.n < p.ort_vertices + 1 and it < 20 * p.ort_vertices:
             it += 1
-            extend(tree, next(targets), p.tree_step, w, self.sc.robot, self.tree_path_free, self.kin.clip_arm)
+            extend(tree, next(targets), p.tree_step, w, self.sc.robot, path_free, self.sampler.kin.clip_arm)
         return tree, it
 
-    def plan(self, omap: OccupancyMap, q_current: np.ndarray, rng: np.random.Generator,
-             start_cov: np.ndarray | None = None) -> PlanResult:  # start_cov: no EU here
+    def plan(self, request: PlanRequest) -> PlanResult:
         p = self.sc.planner
+        omap = request.omap
         times, stages = {}, {}
-        stages.update(self.update_obstacles(omap))
+        obstacles = self.obstacles.for_map(omap)
+        stages.update(obstacles.stats)
         t = time.perf_counter()
-        tree, it = self.grow(q_current, rng)
+        tree, it = self.grow(request.q_start, request.rng, obstacles)
         times["tree_s"] = time.perf_counter() - t
         stages["iterations"] = it
         stages["vertices"] = tree.n - 1
@@ -62,7 +68,7 @@ class ORTPlanner(RandomSamplingPlanner):
         met = self.evaluator.evaluate(omap, q)
         times["visibility_s"] = time.perf_counter() - t
         overlap = registration_overlap(met)
-        reg = overlap > self.overlap_threshold()
+        reg = overlap > self.overlap_h
         un_total = max(omap.unknown_count(), 1)
         info = self.evaluator.information(omap, q, met, p.metric, un_total)
         rho = tree.cost[1: tree.n]
@@ -70,17 +76,29 @@ class ORTPlanner(RandomSamplingPlanner):
         g = reg * info * dist
         stages["registration"] = int(reg.sum())
         stages["surface"] = int(np.count_nonzero(reg & (info > 0)))
-        b = int(np.argmax(g))
-        if g[b] <= 0:
-            return PlanResult("no_candidate", stages=stages, times=times)
-        i = b + 1
-        controls = tree.controls_to(i)
-        states = rollout(tree.q[0], controls, self.sc.robot.control_dt)
-        factors = {"pos": 1.0, "reg": 1.0, "info": float(info[b]), "metric": p.metric, "dist": float(dist[b]),
-                   "rho": float(rho[b]), "un_o": int(met[b, K.M_UN_O]), "oc_o": int(met[b, K.M_OC_O]),
-                   "overlap": float(overlap[b]), "un_total": int(un_total), "du": float(g[b]),
-                   "depth": len(tree.path_to(i)) - 1}
         # the root's children, for reference: the NBVS is at least as good as the best of them
         children = np.flatnonzero(tree.parent[1: tree.n] == 0)
-        factors["best_root_child"] = float(g[children].max()) if len(children) else 0.0
-        return PlanResult("ok", tree.q[i].copy(), controls, states, "ort", float(g[b]), factors, stages, times)
+        stages["best_root_child"] = float(g[children].max()) if len(children) else 0.0
+        ranked = np.flatnonzero(g > 0)
+        if len(ranked) == 0:
+            return PlanResult("no_candidate", stages=stages, times=times)
+        ranked = ranked[np.argsort(-g[ranked], kind="stable")]  # the first is argmax(g)
+
+        def vertex(b: int) -> PlanResult:
+            i = b + 1
+            controls = tree.controls_to(i)
+            states = rollout(tree.q[0], controls, self.sc.robot.control_dt)
+            return PlanResult("ok", tree.q[i].copy(), controls, states, "ort", float(g[b]), {
+                "pos": 1.0, "reg": 1.0, "info": float(info[b]), "metric": p.metric, "dist": float(dist[b]),
+                "rho": float(rho[b]), "un_o": int(met[b, K.M_UN_O]), "oc_o": int(met[b, K.M_OC_O]),
+                "overlap": float(overlap[b]), "un_total": int(un_total), "du": float(g[b]),
+                "depth": len(tree.path_to(i)) - 1})
+
+        batches = (([vertex(b) for b in ranked[s:s + p.top_k]], len(ranked[s:s + p.top_k]))
+                   for s in range(0, len(ranked), p.top_k))
+        best = select_best(batches, self.utility, request, obstacles, un_total, stages, times)
+        stages["top_k"] = min(p.top_k, len(ranked))
+        if best is None:
+            return PlanResult("no_feasible", stages=stages, times=times)
+        best.stages, best.times = stages, times
+        return best

@@ -1,27 +1,31 @@
-"""Seed 001's conditional view sampling as a baseline planner: the unknown voxels of W_box are
-grouped into clusters; N poses are spread evenly over the clusters (eq. 1), each a camera
-position at a random distance and direction from its cluster's centroid looking at it; each
-pose becomes a robot state through Drake's InverseKinematics (camera position within 1 cm,
-optical axis within 5 deg of the centroid direction, roll free, joint limits and base bounds).
-The states then go through the same filter cascade and utility as random sampling, but for
-the registration filter, which seed 001 does not have (its robot knows the arm's pose)."""
+"""Santos et al. 2020's conditional view sampling as a candidate generator: the unknown voxels
+of W_box are grouped into clusters; N poses are spread evenly over the clusters (their eq. 1),
+each a camera position at a random distance and direction from its cluster's centroid looking
+at it; each pose becomes a robot state through Drake's InverseKinematics (camera position
+within 1 cm, optical axis within 5 deg of the centroid direction, roll free, joint limits and
+base bounds). The states then go through random sampling's filter cascade and utility, but for
+the registration filter, which Santos et al. do not have (their robot knows the arm's pose)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..mapping.seed001 import unknown_clusters
-from ..robot import CAMERA_BODY
-from .random_sampling import RandomSamplingPlanner
+from ..robot import CAMERA_BODY, RobotKinematics
+from ..state import NQ
+from .candidates import StateSampler
 
 
-class ViewSamplingPlanner(RandomSamplingPlanner):
+class ClusterViewGenerator:
     pos_tol = 0.01
     angle_tol = np.radians(5.0)
 
-    def overlap_threshold(self) -> float:
-        return -1.0  # no registration filter in seed 001
+    def __init__(self, sc: Scenario, kin: RobotKinematics, sampler: StateSampler):
+        self.sc = sc
+        self.kin = kin
+        self.z_near, self.z_far = sampler.z_near, sampler.z_far
 
     def _ik(self, p: np.ndarray, look: np.ndarray, guess: np.ndarray):
         """A state whose camera is at p looking along `look`, or None."""
@@ -46,10 +50,10 @@ class ViewSamplingPlanner(RandomSamplingPlanner):
     def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
         p = self.sc.planner
         if omap is None:
-            return np.zeros((0, 8)), 0
+            return np.zeros((0, NQ)), 0
         _, centroids, sizes = unknown_clusters(omap.in_wbox() & omap.unknown_mask(), omap.spec.centers())
         if len(sizes) == 0:
-            return np.zeros((0, 8)), 0
+            return np.zeros((0, NQ)), 0
         per = max(1, p.view_poses // len(sizes))  # eq. 1: poses per cluster
         d_max = p.max_view_distance or self.z_far
         states, tried = [], 0
@@ -69,5 +73,5 @@ class ViewSamplingPlanner(RandomSamplingPlanner):
                 q = self._ik(pos, look, guess)
                 if q is not None:
                     states.append(q)
-        out = np.array(states) if states else np.zeros((0, 8))
+        out = np.array(states) if states else np.zeros((0, NQ))
         return out, tried

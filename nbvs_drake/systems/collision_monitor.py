@@ -6,6 +6,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..planning.collision import CollisionModel
+from .messages import ControllerStatus
 
 
 class CollisionMonitor(LeafSystem):
@@ -15,7 +16,7 @@ class CollisionMonitor(LeafSystem):
 
     Input ports:
       - state (8): the true robot state.
-      - controller_status (3): [plan_id, steps done, idle].
+      - controller_status (3): `ControllerStatus`.
     Output ports:
       - counts (3): [collided trajectories, executed trajectories, in collision now].
     State: discrete [collided, executed, last plan_id, current trajectory collided, now].
@@ -25,20 +26,20 @@ class CollisionMonitor(LeafSystem):
         super().__init__()
         self.truth = truth
         self._q = self.DeclareVectorInputPort("state", 8)
-        self._status = self.DeclareVectorInputPort("controller_status", 3)
+        self._status = self.DeclareVectorInputPort("controller_status", ControllerStatus.SIZE)
         self._x = self.DeclareDiscreteState(np.zeros(5))
         self.DeclareVectorOutputPort("counts", 3, self._calc, {self.discrete_state_ticket(self._x)})
         self.DeclarePeriodicDiscreteUpdateEvent(dt, 0.0, self._update)
 
     def _update(self, context, discrete_state):
         collided, executed, last_plan, cur, _ = context.get_discrete_state(self._x).get_value()
-        plan_id, _, idle = self._status.Eval(context)
-        if plan_id > last_plan:
+        status = ControllerStatus.of(self._status.Eval(context))
+        if status.plan_id > last_plan:
             executed += 1
-            last_plan = plan_id
+            last_plan = status.plan_id
             cur = 0.0
         now = 0.0
-        if idle < 0.5 or cur > 0:  # only motion can cause new contact
+        if not status.idle or cur > 0:  # only motion can cause new contact
             now = 0.0 if self.truth.free(self._q.Eval(context))[0] else 1.0
         if now and not cur and last_plan > 0:
             cur = 1.0

@@ -1,7 +1,10 @@
-"""The depth camera: Drake's RgbdSensor rendering with RenderEngineVtk, DepthImageToPointCloud,
-and a small system giving the camera pose from a robot state (the believed one)."""
+"""The depth camera: Drake's RgbdSensor rendering with RenderEngineVtk, the sensor's depth
+noise, DepthImageToPointCloud, and a small system giving the camera pose from a robot state
+(the believed one)."""
 
 from __future__ import annotations
+
+import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -14,7 +17,7 @@ from pydrake.systems.sensors import PixelType, RgbdSensor
 
 from ..config import SensorConfig, resolve_sensor
 from ..robot import CAMERA_BODY, RobotKinematics
-from ..sensor import camera_info, render_camera_info
+from ..sensor import axial_noise_sigma, camera_info, render_camera_info
 
 RENDERER = "vtk"
 
@@ -24,9 +27,23 @@ def add_renderer(scene_graph):
         scene_graph.AddRenderer(RENDERER, MakeRenderEngineVtk(RenderEngineVtkParams()))
 
 
-def add_depth_camera(builder, scene_graph, plant, sensor: SensorConfig):
-    """Adds an RgbdSensor on the robot's camera_optical frame (SR4000 176x144 by default) and a
-    DepthImageToPointCloud. Returns (rgbd_sensor, to_point_cloud). The point cloud's
+@dc.dataclass(frozen=True)
+class DepthCamera:
+    """The camera's systems: the RgbdSensor, its DepthNoise and the DepthImageToPointCloud
+    fed by the noisy depth image; `depth_image_port`: the noisy depth image (what the sensor
+    returns)."""
+    rgbd: object
+    noise: "DepthNoise"
+    to_pc: object
+
+    @property
+    def depth_image_port(self):
+        return self.noise.GetOutputPort("depth_image")
+
+
+def add_depth_camera(builder, scene_graph, plant, sensor: SensorConfig, seed: int = 0, dt: float = 0.1) -> DepthCamera:
+    """Adds an RgbdSensor on the robot's camera_optical frame (SR4000 176x144 by default), the
+    sensor's axial depth noise (DepthNoise) and a DepthImageToPointCloud. The point cloud's
     camera_pose input is left for the caller: the robot only knows its believed pose."""
     s = resolve_sensor(sensor)
     add_renderer(scene_graph)
@@ -37,10 +54,49 @@ def add_depth_camera(builder, scene_graph, plant, sensor: SensorConfig):
     fid = plant.GetBodyFrameIdOrThrow(plant.GetBodyByName(CAMERA_BODY).index())
     rgbd = builder.AddNamedSystem("depth_camera", RgbdSensor(fid, RigidTransform(), cam, False))
     builder.Connect(scene_graph.get_query_output_port(), rgbd.query_object_input_port())
+    noise = builder.AddNamedSystem("depth_noise", DepthNoise(sensor, seed, dt))
+    builder.Connect(rgbd.depth_image_32F_output_port(), noise.GetInputPort("depth_image"))
     to_pc = builder.AddNamedSystem("depth_to_point_cloud",
                                    DepthImageToPointCloud(info, PixelType.kDepth32F, 1.0, BaseField.kXYZs))
-    builder.Connect(rgbd.depth_image_32F_output_port(), to_pc.depth_image_input_port())
-    return rgbd, to_pc
+    builder.Connect(noise.GetOutputPort("depth_image"), to_pc.depth_image_input_port())
+    return DepthCamera(rgbd, noise, to_pc)
+
+
+class DepthNoise(LeafSystem):
+    """The sensor's axial depth noise: each finite depth z becomes z + N(0, sigma_z(z)^2) with
+    sigma_z = noise_a + noise_b (z - 0.4)^2 (the Kinect model of Nguyen et al. 2012; zero for
+    the ToF preset, whose image passes unchanged). Pixels without a return (+-inf) and NaN
+    stay as they are. The draws are seeded by (seed, control step of the image's time).
+
+    Input ports:
+      - depth_image (abstract ImageDepth32F): the rendered depth image.
+    Output ports:
+      - depth_image (abstract ImageDepth32F): the image the sensor returns.
+    """
+
+    def __init__(self, sensor: SensorConfig, seed: int, dt: float):
+        super().__init__()
+        from pydrake.systems.sensors import ImageDepth32F
+        self.sensor = sensor
+        self.seed = int(seed)
+        self.dt = float(dt)
+        self.active = bool(np.any(axial_noise_sigma(sensor, np.array([0.4, 5.0])) > 0))
+        self._in = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
+        self.DeclareAbstractOutputPort("depth_image", lambda: AbstractValue.Make(ImageDepth32F()), self._calc)
+
+    def _calc(self, context, output):
+        image = self._in.Eval(context)
+        if not self.active:
+            output.set_value(image)
+            return
+        z = np.array(image.data, np.float64)
+        finite = np.isfinite(z)
+        rng = np.random.default_rng([self.seed, 11, int(round(context.get_time() / self.dt))])
+        dz = rng.normal(0.0, 1.0, z.shape) * axial_noise_sigma(self.sensor, np.where(finite, z, 0.4))
+        z = np.where(finite, z + dz, z)
+        out = output.get_mutable_value()
+        out.resize(image.width(), image.height())
+        out.mutable_data[:] = z.astype(np.float32)
 
 
 class CameraPose(LeafSystem):

@@ -7,6 +7,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from .. import replay
 from ..mapping.occupancy import OccupancyMap
+from .messages import PlanReport
 
 
 class MeshcatMapView(LeafSystem):
@@ -18,8 +19,7 @@ class MeshcatMapView(LeafSystem):
 
     Input ports:
       - map (abstract OccupancyMap)
-      - plan_report (abstract dict): the NBVSPlanner's report ("scan", "status", "q_goal",
-        and where present "path" and "candidates")
+      - plan_report (abstract PlanReport): the NBVSPlanner's report
     Output ports: none (draws in Meshcat).
 
     What was last drawn (scan count, planned-for scan) is kept in the system, as Drake's
@@ -32,7 +32,7 @@ class MeshcatMapView(LeafSystem):
         self.meshcat = meshcat
         self.kin = kin
         self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(dummy_map))
-        self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make({}))
+        self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make(PlanReport()))
         self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
         self._drawn_scan = -1
         self._drawn_plan = -1
@@ -44,12 +44,12 @@ class MeshcatMapView(LeafSystem):
         if omap.scan_count != self._drawn_scan:
             replay.set_map_objects(self.meshcat, f"{replay.ROOT}/map", omap)
             self._drawn_scan = omap.scan_count
-        plan = self._plan.Eval(context)
-        k = int(plan.get("scan", 0))
+        report: PlanReport = self._plan.Eval(context)
+        k = report.scan
         if k != self._drawn_plan:
             self.meshcat.Delete(f"{replay.ROOT}/plan")
-            if plan.get("status") == "ok":
-                replay.set_plan_objects(self.meshcat, f"{replay.ROOT}/plan", plan, self.kin)
+            if report.status == "ok":
+                replay.set_plan_objects(self.meshcat, f"{replay.ROOT}/plan", report.to_json(), self.kin)
             self._drawn_plan = k
         return EventStatus.Succeeded()
 

@@ -12,7 +12,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ..evaluation import coverage
 from ..mapping.occupancy import OccupancyMap
-from .octree_mapper import ScanReport
+from .messages import ControllerStatus, PlanReport, ScanReport
 
 
 class IterationLog:
@@ -49,11 +49,11 @@ class MissionRecorder(LeafSystem):
     Input ports:
       - map (abstract OccupancyMap)
       - scan_report (abstract ScanReport)
-      - plan_report (abstract dict)
+      - plan_report (abstract PlanReport)
       - true_state (8)
       - collisions (3): [collided trajectories, executed trajectories, in collision now]
-      - controller_status (3): [plan_id, steps done, idle]: the true state is sampled
-        while a plan executes.
+      - controller_status (3): `ControllerStatus`; the true state is sampled while a plan
+        executes.
     Output ports: none (writes files).
     """
 
@@ -64,10 +64,10 @@ class MissionRecorder(LeafSystem):
         self.thresholds = (0.003, 0.005, voxel)
         self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(dummy_map))
         self._scan = self.DeclareAbstractInputPort("scan_report", AbstractValue.Make(ScanReport()))
-        self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make({}))
+        self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make(PlanReport()))
         self._true = self.DeclareVectorInputPort("true_state", 8)
         self._coll = self.DeclareVectorInputPort("collisions", 3)
-        self._status = self.DeclareVectorInputPort("controller_status", 3)
+        self._status = self.DeclareVectorInputPort("controller_status", ControllerStatus.SIZE)
         self.DeclarePeriodicPublishEvent(dt, 0.0, self._publish)
         self._t_last = time.perf_counter()
         self.maps: list[OccupancyMap] = []
@@ -85,11 +85,10 @@ class MissionRecorder(LeafSystem):
         return self._path[::2] + self._path[-1:] if self._path else []
 
     def _publish(self, context):
-        status = self._status.Eval(context)
-        if status[2] < 0.5:  # moving: sample the executed path (a sink's side effect, as the log)
+        if not ControllerStatus.of(self._status.Eval(context)).idle:  # moving: sample the executed path (a sink's side effect, as the log)
             self._path.append(self._r(self._true.Eval(context)))
-        plan = self._plan.Eval(context)
-        k = plan.get("scan", 0)
+        report: PlanReport = self._plan.Eval(context)
+        k = report.scan
         if k <= self.written():
             return
         omap: OccupancyMap = self._map.Eval(context)
@@ -108,11 +107,11 @@ class MissionRecorder(LeafSystem):
             "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
             "object_points": int(len(omap.object_points)),
             "scan": {key: v for key, v in scan.info.items()},
-            "plan": {key: v for key, v in plan.items()
+            "plan": {key: v for key, v in report.to_json().items()
                      if key not in ("scan", "believed_state", "corrected_state")},
             "true_state": [round(float(v), 6) for v in self._true.Eval(context)],
-            "believed_state": plan.get("believed_state"),
-            "corrected_state": plan.get("corrected_state"),
+            "believed_state": report.believed_state,
+            "corrected_state": report.corrected_state,
             "executed_path": self.unfinished_path(),
             "collided_trajectories": int(coll[0]), "executed_trajectories": int(coll[1]),
             "coverage_s": t_cov,

@@ -7,7 +7,9 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..config import NoiseConfig
-from ..motion import NU, ControlSequence, sample_control_noise
+from ..motion import ControlSequence, sample_control_noise
+from ..state import NU
+from .messages import ControllerStatus
 
 
 class _Noise:
@@ -41,7 +43,8 @@ class NoisyVelocityController(LeafSystem):
       - controls (abstract ControlSequence).
     Output ports:
       - velocity (7): the noisy command u + eps applied over the current dt.
-      - status (3): [plan_id being executed, steps done, idle (1 when the plan is finished)].
+      - status (3): `ControllerStatus` [plan_id being executed, steps done, idle (1 when the
+        plan is finished)].
     State: discrete [plan_id, step, idle, u(7)]; abstract noise table of the current plan.
     """
 
@@ -56,7 +59,7 @@ class NoisyVelocityController(LeafSystem):
         self._x = self.DeclareDiscreteState(x0)
         self._eps = self.DeclareAbstractState(AbstractValue.Make(_Noise(0, np.zeros((0, NU)))))
         self.DeclareVectorOutputPort("velocity", NU, self._calc_u, {self.discrete_state_ticket(self._x)})
-        self.DeclareVectorOutputPort("status", 3, self._calc_status, {self.discrete_state_ticket(self._x)})
+        self.DeclareVectorOutputPort("status", ControllerStatus.SIZE, self._calc_status, {self.discrete_state_ticket(self._x)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.dt, 0.0, self._update)
 
     def _update(self, context, state):

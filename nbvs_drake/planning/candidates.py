@@ -1,0 +1,64 @@
+"""Candidate generation: uniform samples of the robot's state space (Vasquez-Gomez et al. 2017,
+§7.6 step 1), kept when the camera's director ray meets W_box within the working range. Also
+the target stream that grows the Object Reconstruction Tree towards the view space."""
+
+from __future__ import annotations
+
+from typing import Iterator
+
+import numpy as np
+
+from ..config import Scenario, resolve_sensor
+from ..mapping.occupancy import OccupancyMap
+from ..robot import RobotKinematics
+from ..state import NQ
+from .views import director_ray_hits
+
+
+class StateSampler:
+    """Uniform states within the base bounds and the arm's joint limits, and the director-ray
+    test of the scenario's W_box within [z_near, min(z_far, planner.max_view_distance)]."""
+
+    def __init__(self, sc: Scenario, kin: RobotKinematics):
+        self.sc = sc
+        self.kin = kin
+        s = resolve_sensor(sc.sensor)
+        self.z_near = s.z_near
+        self.z_far = min(s.z_far, sc.planner.max_view_distance or s.z_far)
+
+    def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        lo, hi = self.sc.robot.xy_bounds
+        q = np.empty((n, NQ))
+        q[:, 0:2] = rng.uniform(lo, hi, size=(n, 2))
+        q[:, 2] = rng.uniform(-np.pi, np.pi, size=n)
+        q[:, 3:] = rng.uniform(self.kin.arm_lower, self.kin.arm_upper, size=(n, 5))
+        return q
+
+    def looks_at_wbox(self, q: np.ndarray) -> np.ndarray:
+        """Whether each state's director ray meets W_box within the working range."""
+        bmin, bmax = self.sc.scene.bbox_min, self.sc.scene.bbox_max
+        return director_ray_hits(self.kin.camera_poses(q), bmin, bmax, self.z_near, self.z_far)
+
+    def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
+        """planner.n_candidates states whose director ray meets W_box (at most
+        planner.max_generation_factor times as many raw samples). Returns (states, raw
+        samples drawn)."""
+        p = self.sc.planner
+        kept, raw = [], 0
+        need = p.n_candidates
+        while need > 0 and raw < p.max_generation_factor * p.n_candidates:
+            batch = self.sample_states(rng, max(4 * need, 1024))
+            raw += len(batch)
+            sel = batch[self.looks_at_wbox(batch)][:need]
+            kept.append(sel)
+            need -= len(sel)
+        q = np.concatenate(kept) if kept else np.zeros((0, NQ))
+        return q, raw
+
+    def targets(self, rng: np.random.Generator) -> Iterator[np.ndarray]:
+        """An endless stream of random states that look at W_box: the Object Reconstruction
+        Tree grows towards them (the ORT paper's proposed bias of the growth to the view
+        space)."""
+        while True:
+            batch = self.sample_states(rng, 4096)
+            yield from batch[self.looks_at_wbox(batch)]

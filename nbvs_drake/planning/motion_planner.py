@@ -1,0 +1,118 @@
+"""The motion planner: collision-free paths from the believed state to a candidate, as exact
+control sequences (the steering function's direct paths, then RRT Ext-Ext, Vasquez-Gomez et
+al. 2017 §7.4), and the path checks the trees use. The obstacles are passed per plan: an
+`ObstacleModel` holds the collision model of one plan's world (the known environment plus
+W_box, or the map's unknown and occupied voxels after a given scan)."""
+
+from __future__ import annotations
+
+import dataclasses as dc
+import time
+
+import numpy as np
+
+from ..config import Scenario
+from ..mapping.occupancy import OccupancyMap
+from ..motion import rollout, steer
+from ..robot import RobotKinematics
+from .candidates import StateSampler
+from .collision import CollisionModel
+
+
+@dc.dataclass(frozen=True)
+class ObstacleModel:
+    """The planning obstacles of one plan: `collision` checks states against the known
+    environment and the unknown region (W_box, or the map's unknown and occupied voxels
+    after scan `scan`); `stats` describes how they were built (for the plan report)."""
+    collision: CollisionModel
+    scan: int = -1
+    stats: dict = dc.field(default_factory=dict)
+
+    def free(self, q: np.ndarray) -> np.ndarray:
+        return self.collision.free(q)
+
+
+class PlanningObstacles:
+    """Builds each plan's ObstacleModel (Vasquez-Gomez et al. 2017 §3: O = W_obj u W_unk u
+    O_env). planner.map_obstacles "wbox": one model with the whole W_box, built once;
+    "voxels": the map's unknown and occupied voxels as at most planner.max_obstacle_boxes
+    merged boxes, built once per scan (the last one is kept: plans of the same map share it)."""
+
+    def __init__(self, sc: Scenario, kin: RobotKinematics, wbox_model: CollisionModel | None = None):
+        self.sc = sc
+        self.kin = kin
+        self._wbox = wbox_model
+        self._last: ObstacleModel | None = None
+
+    def for_map(self, omap: OccupancyMap) -> ObstacleModel:
+        p = self.sc.planner
+        if p.map_obstacles != "voxels":
+            if self._wbox is None:
+                self._wbox = CollisionModel(self.sc, self.kin)
+            return ObstacleModel(self._wbox)
+        if self._last is not None and self._last.scan == omap.scan_count:
+            return ObstacleModel(self._last.collision, self._last.scan)
+        t = time.perf_counter()
+        boxes, block = omap.obstacle_boxes(p.max_obstacle_boxes)
+        model = CollisionModel(self.sc, self.kin, obstacle_boxes=boxes)
+        self._last = ObstacleModel(model, omap.scan_count, {
+            "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t})
+        return self._last
+
+
+class MotionPlanner:
+    """Paths between states against a plan's obstacles (`ObstacleModel`)."""
+
+    #: a believed start state in collision (the belief is uncertain; W_box is a conservative
+    #: obstacle) may be left within this many control steps; the rest of the path is checked
+    max_escape_steps: int = 15
+
+    def __init__(self, sc: Scenario, kin: RobotKinematics, sampler: StateSampler):
+        self.sc = sc
+        self.kin = kin
+        self.sampler = sampler
+
+    def escape_prefix(self, states: np.ndarray, obstacles: ObstacleModel) -> int | None:
+        """0 when the path starts collision-free; else the index of its first free state if
+        that comes within max_escape_steps, else None."""
+        if obstacles.free(states[:1])[0]:
+            return 0
+        head = states[: self.max_escape_steps + 1]
+        free = np.flatnonzero(obstacles.free(head))
+        return int(free[0]) if len(free) else None
+
+    def path_free(self, states: np.ndarray, obstacles: ObstacleModel, max_step: float = 0.02) -> bool:
+        """Arm limits, then the end state alone (one check rejects most failing tree
+        extensions), then the whole path at `max_step` resolution; a path that fails only
+        because its start state is in collision is accepted when it leaves the collision
+        within the escape prefix and is free from there on."""
+        if not np.all(self.kin.arm_within_limits(states)) or not obstacles.free(states[-1:])[0]:
+            return False
+        if obstacles.collision.path_free(states, max_step=max_step):
+            return True
+        start = self.escape_prefix(states, obstacles)
+        return bool(start) and obstacles.collision.path_free(states[start:], max_step=max_step)
+
+    def tree_path_free(self, states: np.ndarray, obstacles: ObstacleModel) -> bool:
+        """Tree edges of the Object Reconstruction Tree are checked at 4 cm resolution."""
+        return self.path_free(states, obstacles, max_step=0.04)
+
+    def connect(self, q0: np.ndarray, q1: np.ndarray, obstacles: ObstacleModel,
+                rng: np.random.Generator | None = None):
+        """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering
+        function's direct paths first (a tree that connects at its first extension); then
+        RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
+        dt = self.sc.robot.control_dt
+        for kind, controls in steer(q0, q1, self.sc.robot):
+            states = rollout(q0, controls, dt)
+            if self.path_free(states, obstacles):
+                return kind, controls, states
+        p = self.sc.planner
+        if p.rrt_max_nodes > 0 and rng is not None:
+            from .rrt import rrt_ext_ext
+            res = rrt_ext_ext(q0, q1, self.sc.robot, np.asarray(p.weights), self.sampler.sample_states,
+                              lambda s: self.path_free(s, obstacles), self.kin.clip_arm, rng,
+                              max_nodes=p.rrt_max_nodes, step=p.tree_step)
+            if res.found:
+                return "rrt", res.controls, res.states
+        return None

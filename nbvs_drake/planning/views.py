@@ -1,0 +1,105 @@
+"""The view evaluator: what the camera would see from candidate robot states, simulated by
+ray casting in the occupancy map (numba kernels), and the view-dependent factors of the
+utility: the information term (Vasquez-Gomez et al. 2017's surface factor, the ORT paper's
+FIG/SIG/VUV/RSV, or Santos et al. 2020's score), the registration overlap (reg, Vasquez-Gomez et
+al. 2017 eq. 5) and the director-ray test of candidate generation (§7.6 step 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config import Scenario, resolve_sensor
+from ..mapping import view_metrics as K
+from ..mapping.occupancy import OccupancyMap
+from ..mapping.voxel import UNKNOWN, classes_grid
+from ..robot import RobotKinematics
+from ..sensor import ray_directions
+
+
+class ViewEvaluator:
+    """Scores robot states by simulating their scans in the map (batch numba kernel)."""
+
+    def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None, hrt_a: int | None = None):
+        self.kin = kin
+        self.sensor = sc.sensor
+        self.stride = stride or sc.planner.ray_stride
+        self.hrt_a = sc.planner.hrt_a if hrt_a is None else hrt_a
+        self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
+        import numba
+        self.n_chunks = max(1, numba.get_num_threads())
+
+    def evaluate(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
+        """Metrics (N, K.N_METRICS) of the states q (N, 8); see view_metrics.M_*."""
+        q = np.atleast_2d(q)
+        if len(q) == 0:
+            return np.zeros((0, K.N_METRICS))
+        X = self.kin.camera_poses(q)
+        return self.evaluate_poses(omap, X)
+
+    def seed001_score(self, omap: OccupancyMap, q: np.ndarray, w: float = 0.5) -> np.ndarray:
+        """Seed 001's score of states q (voxel-sorted ray casting), within the sensor's range."""
+        from ..mapping import seed001
+        from ..sensor import intrinsics
+        q = np.atleast_2d(q)
+        if len(q) == 0:
+            return np.zeros(0)
+        X = self.kin.camera_poses(q)
+        m = omap.model
+        cls = classes_grid(np.ascontiguousarray(omap.logodds, dtype=np.float32), m.l_free, m.l_occ)
+        wd, ht, fx, fy, cx, cy = intrinsics(self.sensor)
+        s = resolve_sensor(self.sensor)
+        res = seed001.voxel_sorted_views(cls, omap.spec.bmin.astype(np.float64), omap.spec.res,
+                                         np.ascontiguousarray(X[:, :3, 3]), np.ascontiguousarray(X[:, :3, :3]),
+                                         fx, fy, cx, cy, wd, ht, s.z_near, s.z_far, min(self.n_chunks, len(q)))
+        outer, inner = seed001.unknown_volumes(cls == UNKNOWN, omap.spec.res)
+        return seed001.score(res[:, 0], res[:, 1], omap.spec.res, outer, inner, w)
+
+    def information(self, omap: OccupancyMap, q: np.ndarray, met: np.ndarray, metric: str, un_total: int):
+        """The information term of states q whose ray metrics are `met`."""
+        if metric == "seed001":
+            return self.seed001_score(omap, q)
+        return information(met, metric, un_total)
+
+    def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
+        pos = np.ascontiguousarray(X[:, :3, 3])
+        rot = np.ascontiguousarray(X[:, :3, :3])
+        m = omap.model
+        lo = np.ascontiguousarray(omap.logodds, dtype=np.float32)
+        args = (omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot, self.dirs, self.t_near,
+                self.t_far, m.l_free, m.l_occ, min(self.n_chunks, len(pos)))
+        if self.hrt_a > 0:
+            return K.evaluate_views_hrt(lo, self.hrt_a, *args)
+        return K.evaluate_views(lo, *args)
+
+
+def registration_overlap(met: np.ndarray) -> np.ndarray:
+    """Share of the simulated scan's returns in the map that land on known surface:
+    oc_rays / (oc_rays + un_rays). reg(x) = 1 when this exceeds h (seed 000 eq. 5, measured
+    per ray: ICP needs overlapping points, and distinct-voxel counts let the large side
+    faces of the occlusion shadow behind a first scan veto every nearby view)."""
+    oc, un = met[:, K.M_OC_RAYS], met[:, K.M_UN_RAYS]
+    tot = oc + un
+    return np.where(tot > 0, oc / np.maximum(tot, 1), 0.0)
+
+
+def information(met: np.ndarray, metric: str, un_total: int) -> np.ndarray:
+    """The information term I(x) of the utility, normalised by the unknown voxels (entropy
+    metrics also by ln 2, a voxel's maximum entropy): sur = VUV = un_o (seed 000 eq. 6),
+    fig, sig, rsv (seed 003)."""
+    col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]  # seed001: ViewEvaluator
+    norm = un_total * (np.log(2.0) if metric in ("fig", "sig") else 1.0)
+    return met[:, col] / max(norm, 1e-12)
+
+
+def director_ray_hits(X: np.ndarray, bmin, bmax, t_near: float, t_far: float) -> np.ndarray:
+    """Whether each camera's optical axis meets the box within [t_near, t_far] (it enters
+    the box before t_far and leaves it after t_near)."""
+    o = X[:, :3, 3]
+    d = X[:, :3, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / d
+        ta = (np.asarray(bmin) - o) * inv
+        tb = (np.asarray(bmax) - o) * inv
+    t0 = np.nanmax(np.minimum(ta, tb), axis=1)
+    t1 = np.nanmin(np.maximum(ta, tb), axis=1)
+    return (t0 <= t1) & (t1 >= t_near) & (t0 <= t_far)

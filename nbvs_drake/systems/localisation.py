@@ -1,0 +1,193 @@
+"""Localisation: the one owner of the robot's belief (state and planar pose covariance)."""
+
+from __future__ import annotations
+
+import functools
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.perception import PointCloud
+from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
+
+from ..config import Scenario, resolve_sensor
+from ..mapping.occupancy import OccupancyMap
+from ..motion import ControlSequence
+from ..registration import (EXACT_POSE_VAR, Correction, KnownSolids, RegistrationConfig, RegistrationModel,
+                            ScanView, environment_model, motion_prior, region_mask, register_scan)
+from ..robot import RobotKinematics
+from ..sensor import clean_scan, no_return_rays, ray_directions
+from ..state import NQ
+from .messages import Belief, ControllerStatus, RegisteredScan
+
+
+class _Memory:
+    """Immutable state: the belief, the plan it last predicted from, the last plan scanned, the
+    pose covariance no registration has removed yet, the registration model, the last scan."""
+
+    def __init__(self, belief: Belief, predicted_plan: int, scanned_plan: int, pending: np.ndarray,
+                 model: RegistrationModel, last_scan: RegisteredScan):
+        self.belief = belief
+        self.predicted_plan = predicted_plan
+        self.scanned_plan = scanned_plan
+        self.pending = pending
+        self.model = model
+        self.last_scan = last_scan
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+class _Outcome:
+    """The registered scan and the memory after it (None when no scan is due)."""
+
+    def __init__(self, scan: RegisteredScan, memory: _Memory | None):
+        self.scan = scan
+        self.memory = memory
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+class Localisation(LeafSystem):
+    """Registers each scan and holds the belief. While a plan executes the belief is its
+    predicted end state (dead reckoning). When the controller reports that a new plan has
+    finished (idle), the scan is taken: the point cloud (world frame at the believed camera
+    pose) without invalid returns, and the no-return pixels as maximum-range rays; with
+    mission.relocalization = icp it is registered against the registration model (the known
+    environment plus the earlier registered scans: planar MAP point-to-plane ICP with the
+    executed plan's motion-model prior and the see-through check against the known solids and
+    the map's free space, `registration.register_scan`), and the belief is corrected. A scan
+    whose registration fails keeps the odometry; its plan's pose spread carries over to the
+    next registration's prior and to the planner (the covariance), and with
+    mission.skip_unregistered_scans the scan is handed on marked not to be integrated. With
+    exact odometry (no noise) nothing is registered.
+
+    Input ports:
+      - point_cloud (abstract PointCloud): the depth camera's cloud, world frame at the
+        believed camera pose.
+      - depth_image (abstract ImageDepth32F): the same scan's depth image (its no-return
+        pixels clear free space up to the maximum range).
+      - controller_status (3): `ControllerStatus`.
+      - controls (abstract ControlSequence): the current plan (its states predict the
+        belief; its controls give the registration's motion prior).
+      - map (abstract OccupancyMap): the map of the earlier scans (the free space the
+        registration must not put surface into).
+    Output ports:
+      - registered_scan (abstract RegisteredScan): the newest scan at its corrected pose;
+        computed when the scan is due, so the mapper integrates it at the same tick.
+      - belief (abstract Belief): scan index, dead-reckoned and corrected state, covariance.
+      - believed_state (8): the believed state (for the believed camera pose).
+    State: abstract (belief, registration model, last scan, pending covariance).
+    """
+
+    def __init__(self, sc: Scenario, kin: RobotKinematics, q0, dt: float):
+        super().__init__()
+        self.sc = sc
+        self.reg_cfg = RegistrationConfig()
+        self._solids = KnownSolids.of(sc)
+        self._dirs = ray_directions(sc.sensor, 1)[0]
+        self._z_far = resolve_sensor(sc.sensor).z_far
+        q0 = np.asarray(q0, float)
+        model0 = environment_model(sc, self.reg_cfg) if sc.mission.relocalization == "icp" else RegistrationModel()
+        mem = _Memory(Belief.exact(q0), 0, -1, np.zeros((3, 3)), model0, RegisteredScan())
+        self._pc = self.DeclareAbstractInputPort("point_cloud", AbstractValue.Make(PointCloud()))
+        from pydrake.systems.sensors import ImageDepth32F
+        self._depth = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
+        self._status = self.DeclareVectorInputPort("controller_status", ControllerStatus.SIZE)
+        self._tau = self.DeclareAbstractInputPort("controls", AbstractValue.Make(ControlSequence.empty(q0, dt)))
+        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
+        self._mem = self.DeclareAbstractState(AbstractValue.Make(mem))
+        self._kin = kin
+        self._outcome = self.DeclareCacheEntry(
+            "scan_outcome", ValueProducer(allocate=lambda: AbstractValue.Make(_Outcome(RegisteredScan(), None)),
+                                          calc=self._calc_outcome), {self.all_sources_ticket()})
+        self.DeclareAbstractOutputPort("registered_scan", lambda: AbstractValue.Make(RegisteredScan()),
+                                       self._calc_scan, {self._outcome.ticket()})
+        self.DeclareAbstractOutputPort("belief", lambda: AbstractValue.Make(mem.belief), self._calc_belief,
+                                       {self.abstract_state_ticket(self._mem)})
+        self.DeclareVectorOutputPort("believed_state", NQ, self._calc_believed_state,
+                                     {self.abstract_state_ticket(self._mem)})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
+
+    def _mem_of(self, context) -> _Memory:
+        return context.get_abstract_state(self._mem).get_value()
+
+    def _scan_due(self, context, mem: _Memory) -> ControllerStatus | None:
+        status = ControllerStatus.of(self._status.Eval(context))
+        return status if status.idle and status.plan_id > mem.scanned_plan else None
+
+    def _register(self, context, mem: _Memory, status: ControllerStatus):
+        """(the registered scan, the corrected belief, the pending covariance, the model)."""
+        t0 = time.perf_counter()
+        X_WC = self._kin.camera_poses(mem.belief.state)[0]
+        cloud = self._pc.Eval(context)
+        t_render = time.perf_counter() - t0
+        k = mem.belief.scan + 1
+        pts = clean_scan(cloud.xyzs())
+        free_rays = no_return_rays(self._depth.Eval(context).data, X_WC, self._dirs, self._z_far)
+        t1 = time.perf_counter()
+        icp = None
+        corr = Correction()
+        integrate = True
+        pending = mem.pending
+        if self.sc.mission.relocalization == "icp" and mem.belief.scan > 0:
+            tau: ControlSequence = self._tau.Eval(context)
+            prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
+                                           np.random.default_rng([self.sc.seed, 13, k]))
+            if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
+                omap: OccupancyMap = self._map.Eval(context)
+                icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,
+                                    free_at=functools.partial(omap.free_hits,
+                                                              table_clearance=self.sc.mapper.table_clearance),
+                                    view=ScanView(X_WC[:3, 3], pts, self._solids))
+                if icp.applied:
+                    corr = icp.correction
+                    pts, free_rays, X_WC = corr.apply_points(pts), corr.apply_points(free_rays), corr.apply_pose(X_WC)
+                    pending = np.zeros((3, 3))
+                else:
+                    pending = prior
+                    integrate = not self.sc.mission.skip_unregistered_scans
+        t_register = time.perf_counter() - t1
+        model = mem.model
+        if integrate:
+            model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
+        scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, dict(
+            plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
+            icp=icp.to_json() if icp is not None else None))
+        dead = mem.belief.state
+        belief = Belief(k, dead, corr.apply_state(dead), pending.copy())
+        return scan, belief, pending, model
+
+    def _calc_outcome(self, context, value):
+        """The due scan's registration and the memory after it (None: no scan due), cached:
+        the mapper's input and this system's update read the same result."""
+        mem = self._mem_of(context)
+        status = self._scan_due(context, mem)
+        if status is None:
+            value.set_value(_Outcome(mem.last_scan, None))
+            return
+        scan, belief, pending, model = self._register(context, mem, status)
+        value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, pending, model, scan)))
+
+    def _calc_scan(self, context, output):
+        output.set_value(self._outcome.Eval(context).scan)
+
+    def _update(self, context, state):
+        mem = self._mem_of(context)
+        new = self._outcome.Eval(context).memory
+        if new is None:
+            tau: ControlSequence = self._tau.Eval(context)
+            if tau.plan_id <= mem.predicted_plan:
+                return
+            # a new plan: the belief is its predicted end state until the next scan corrects it
+            b = mem.belief
+            new = _Memory(Belief(b.scan, b.dead_reckoned, tau.states[-1], b.covariance), tau.plan_id,
+                          mem.scanned_plan, mem.pending, mem.model, mem.last_scan)
+        state.get_mutable_abstract_state(self._mem).set_value(new)
+
+    def _calc_belief(self, context, output):
+        output.set_value(self._mem_of(context).belief)
+
+    def _calc_believed_state(self, context, output: BasicVector):
+        output.SetFromVector(self._mem_of(context).belief.state)

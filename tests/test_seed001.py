@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from nbvs_drake.mapping.seed001 import score, unknown_clusters, unknown_volumes, voxel_sorted_views
+from nbvs_drake.mapping.voxel import FREE, OCCUPIED, UNKNOWN
 
 R_X = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # camera +z along world +x
 
@@ -14,25 +15,26 @@ def _view(cls, o=(-1.0, 0.55, 0.55), res=0.1):
 
 
 def test_unoccluded_block_is_discovered_entirely():
-    cls = np.zeros((12, 11, 11), np.int8)
-    cls[4:8, 3:8, 3:8] = 1  # 4 x 5 x 5 unknown block in free space
+    cls = np.full((12, 11, 11), FREE, np.int8)
+    cls[4:8, 3:8, 3:8] = UNKNOWN  # 4 x 5 x 5 unknown block in free space
     n_first, n_post, rays = _view(cls)
-    assert n_first + n_post == cls.sum()  # every unknown voxel in view is intercepted once
-    assert 25 <= n_first < cls.sum()  # at least the front face is first on its rays
-    assert 0 < rays <= cls.sum()  # one ray per voxel at most: intercepted voxels are skipped
+    n_unknown = np.count_nonzero(cls == UNKNOWN)
+    assert n_first + n_post == n_unknown  # every unknown voxel in view is intercepted once
+    assert 25 <= n_first < n_unknown  # at least the front face is first on its rays
+    assert 0 < rays <= n_unknown  # one ray per voxel at most: intercepted voxels are skipped
 
 
 def test_occluded_voxels_are_never_discovered():
-    cls = np.zeros((12, 11, 11), np.int8)
-    cls[4:8, 3:8, 3:8] = 1
-    cls[2, :, :] = 2  # an occupied wall across the whole view in front of the block
+    cls = np.full((12, 11, 11), FREE, np.int8)
+    cls[4:8, 3:8, 3:8] = UNKNOWN
+    cls[2, :, :] = OCCUPIED  # an occupied wall across the whole view in front of the block
     n_first, n_post, _ = _view(cls)
     assert n_first == 0 and n_post == 0
 
 
 def test_outside_the_frustum_is_ignored():
-    cls = np.zeros((12, 11, 11), np.int8)
-    cls[4:8, 3:8, 3:8] = 1
+    cls = np.full((12, 11, 11), FREE, np.int8)
+    cls[4:8, 3:8, 3:8] = UNKNOWN
     n = _view(cls, o=(-1.0, 5.0, 0.55))  # looking past the block
     assert n[0] + n[1] == 0
 

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from nbvs_drake.mapping import kernels as K
+from nbvs_drake.mapping import cells, voxel
+from nbvs_drake.mapping import view_metrics as VM
 
 L_FREE, L_OCC = math.log(0.45 / 0.55), math.log(0.55 / 0.45)
 
@@ -50,9 +51,9 @@ def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2):
                 sig += _entropy(lv)
                 fig_set.add(v)
                 (first if n_unk == 1 else posterior).add(v)
-    return {K.M_UN_O: len(first), K.M_OC_O: len(occ), K.M_FIG: sum(_entropy(logodds[v]) for v in fig_set),
-            K.M_SIG: sig, K.M_RSV: rsv, K.M_RAYS: nrays, K.M_OC_RAYS: oc_rays, K.M_UN_RAYS: un_rays,
-            K.M_N_POSTERIOR: len(posterior - first)}
+    return {VM.M_UN_O: len(first), VM.M_OC_O: len(occ), VM.M_FIG: sum(_entropy(logodds[v]) for v in fig_set),
+            VM.M_SIG: sig, VM.M_RSV: rsv, VM.M_RAYS: nrays, VM.M_OC_RAYS: oc_rays, VM.M_UN_RAYS: un_rays,
+            VM.M_N_POSTERIOR: len(posterior - first)}
 
 
 def _random_map(rng, dims=(9, 8, 7)):
@@ -74,7 +75,7 @@ def test_kernel_matches_brute_force(seed):
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     t_near = np.full(len(dirs), 0.05)
     t_far = np.full(len(dirs), rng.uniform(0.8, 2.0))
-    got = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
+    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
     ref = _brute(lo, bmin, res, o, dirs, t_near, t_far)
     for m, v in ref.items():
         assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
@@ -88,14 +89,14 @@ def _one_ray_grid():
 def test_fig_counts_a_voxel_once_per_view_sig_once_per_ray():
     lo, bmin, res, o, d = _one_ray_grid()
     lo[2:5] = 0.0  # three unknown voxels
-    one = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
-    two = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], np.repeat(d, 2, 0), np.zeros(2),
+    one = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
+    two = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], np.repeat(d, 2, 0), np.zeros(2),
                            np.full(2, 10.0), L_FREE, L_OCC, 1)[0]
-    assert one[K.M_FIG] == pytest.approx(3 * math.log(2))
-    assert two[K.M_FIG] == pytest.approx(one[K.M_FIG])  # FIG: once per view
-    assert two[K.M_SIG] == pytest.approx(2 * one[K.M_SIG])  # SIG: once per ray
-    assert one[K.M_VUV] == 1 and two[K.M_VUV] == 1  # VUV: only the first unknown voxel
-    assert one[K.M_N_POSTERIOR] == 2
+    assert one[VM.M_FIG] == pytest.approx(3 * math.log(2))
+    assert two[VM.M_FIG] == pytest.approx(one[VM.M_FIG])  # FIG: once per view
+    assert two[VM.M_SIG] == pytest.approx(2 * one[VM.M_SIG])  # SIG: once per ray
+    assert one[VM.M_VUV] == 1 and two[VM.M_VUV] == 1  # VUV: only the first unknown voxel
+    assert one[VM.M_N_POSTERIOR] == 2
 
 
 def test_rsv_only_the_voxel_right_behind_an_occupied_hit():
@@ -103,12 +104,12 @@ def test_rsv_only_the_voxel_right_behind_an_occupied_hit():
     lo[2] = 1.2  # occupied
     lo[3] = 0.0  # unknown right behind it
     lo[4] = 0.0
-    m = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
-    assert m[K.M_RSV] == 1 and m[K.M_OC_O] == 1
-    assert m[K.M_FIG] == 0 and m[K.M_VUV] == 0  # the ray stops at the occupied voxel
+    m = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
+    assert m[VM.M_RSV] == 1 and m[VM.M_OC_O] == 1
+    assert m[VM.M_FIG] == 0 and m[VM.M_VUV] == 0  # the ray stops at the occupied voxel
     lo[3] = -1.5  # free behind it: no rear side voxel, even with unknown further back
-    m = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
-    assert m[K.M_RSV] == 0
+    m = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
+    assert m[VM.M_RSV] == 0
 
 
 def test_views_in_parallel_equal_views_one_by_one():
@@ -120,9 +121,9 @@ def test_views_in_parallel_equal_views_one_by_one():
     pos = rng.uniform(-0.3, 0.0, (n, 3)) + [0.5, 0.5, -0.2]
     rot = np.repeat(np.eye(3)[None], n, 0)
     tn, tf = np.zeros(len(dirs)), np.full(len(dirs), 3.0)
-    batch = K.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 3)
+    batch = VM.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 3)
     for i in range(n):
-        single = K.evaluate_views(lo, np.zeros(3), 0.1, pos[i:i + 1], rot[i:i + 1], dirs, tn, tf, L_FREE, L_OCC, 1)
+        single = VM.evaluate_views(lo, np.zeros(3), 0.1, pos[i:i + 1], rot[i:i + 1], dirs, tn, tf, L_FREE, L_OCC, 1)
         np.testing.assert_allclose(batch[i], single[0])
 
 
@@ -136,11 +137,11 @@ def test_hrt_is_exact_where_every_cell_is_refined(a):
     pos = np.array([[0.8, 0.6, -0.6], [0.3, 0.2, -0.3]])
     rot = np.repeat(np.eye(3)[None], 2, 0)
     tn, tf = np.zeros(len(dirs)), np.full(len(dirs), 3.0)
-    uni = K.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
-    bits, _, _ = K.coarse_summary(lo, K.entropy_grid(lo), a, L_FREE, L_OCC)
-    assert not np.any(bits == K.C_UNKNOWN)
-    hrt = K.evaluate_views_hrt(lo, a, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
-    skipped = np.all(bits == K.C_FREE)
+    uni = VM.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
+    bits, _, _ = cells.coarse_summary(lo, voxel.entropy_grid(lo), a, L_FREE, L_OCC)
+    assert not np.any(bits == voxel.C_UNKNOWN)
+    hrt = VM.evaluate_views_hrt(lo, a, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
+    skipped = np.all(bits == voxel.C_FREE)
     assert not skipped
     np.testing.assert_allclose(hrt, uni, rtol=1e-9)
 
@@ -152,18 +153,18 @@ def test_hrt_skips_free_cells_and_accounts_unknown_cells():
     d = np.array([[1.0, 0.0, 0.0]])
     o = np.array([-0.5, 0.2, 0.2])
     args = (np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 5.0), L_FREE, L_OCC, 1)
-    uni = K.evaluate_views(lo, *args)[0]
-    hrt = K.evaluate_views_hrt(lo, 2, *args)[0]
-    assert hrt[K.M_VUV] == uni[K.M_VUV] == 1  # the entry voxel of the unknown region
-    assert hrt[K.M_SIG] == pytest.approx(uni[K.M_SIG])  # 8 voxels crossed
+    uni = VM.evaluate_views(lo, *args)[0]
+    hrt = VM.evaluate_views_hrt(lo, 2, *args)[0]
+    assert hrt[VM.M_VUV] == uni[VM.M_VUV] == 1  # the entry voxel of the unknown region
+    assert hrt[VM.M_SIG] == pytest.approx(uni[VM.M_SIG])  # 8 voxels crossed
     # FIG estimates the distinct voxels touched from the voxels crossed: exact for one ray
-    assert hrt[K.M_FIG] == pytest.approx(uni[K.M_FIG]) == pytest.approx(8 * math.log(2))
-    assert hrt[K.M_N_POSTERIOR] == pytest.approx(uni[K.M_N_POSTERIOR]) == 7
+    assert hrt[VM.M_FIG] == pytest.approx(uni[VM.M_FIG]) == pytest.approx(8 * math.log(2))
+    assert hrt[VM.M_N_POSTERIOR] == pytest.approx(uni[VM.M_N_POSTERIOR]) == 7
     # many parallel rays through the same cells saturate at the cells' 2 x 64 unknown voxels
     d2 = np.repeat(d, 50, 0)
-    many = K.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, o[None], np.eye(3)[None], d2, np.zeros(50),
+    many = VM.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, o[None], np.eye(3)[None], d2, np.zeros(50),
                                 np.full(50, 5.0), L_FREE, L_OCC, 1)[0]
-    assert many[K.M_FIG] == pytest.approx(2 * 64 * math.log(2))
+    assert many[VM.M_FIG] == pytest.approx(2 * 64 * math.log(2))
 
 
 def _block_map(rng, dims=(17, 14, 11)):
@@ -197,7 +198,7 @@ def test_kernel_matches_brute_force_on_homogeneous_cells(seed):
     dirs = targets - o
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     t_near, t_far = np.full(len(dirs), 0.05), np.full(len(dirs), 3.0)
-    got = K.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
+    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
     ref = _brute(lo, bmin, res, o, dirs, t_near, t_far)
     for m, v in ref.items():
         assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
@@ -206,16 +207,16 @@ def test_kernel_matches_brute_force_on_homogeneous_cells(seed):
 def test_cell_masks_hold_the_classes():
     rng = np.random.default_rng(3)
     lo = _block_map(rng, (9, 6, 7))
-    cls = K.classes_grid(lo, L_FREE, L_OCC)
-    H = K.entropy_grid(lo)
-    U, O, hc = K.cell_masks(cls, H)
+    cls = voxel.classes_grid(lo, L_FREE, L_OCC)
+    H = voxel.entropy_grid(lo)
+    U, O, hc = cells.cell_masks(cls, H)
     cy, cz = 2, 2
     for i, j, k in np.ndindex(lo.shape):
         cf = ((i >> 2) * cy + (j >> 2)) * cz + (k >> 2)
         b = ((i & 3) * 4 + (j & 3)) * 4 + (k & 3)
-        assert bool((int(U[cf]) >> b) & 1) == (cls[i, j, k] == 1)
-        assert bool((int(O[cf]) >> b) & 1) == (cls[i, j, k] == 2)
-        if cls[i, j, k] == 1 and hc[cf] >= 0:
+        assert bool((int(U[cf]) >> b) & 1) == (cls[i, j, k] == voxel.UNKNOWN)
+        assert bool((int(O[cf]) >> b) & 1) == (cls[i, j, k] == voxel.OCCUPIED)
+        if cls[i, j, k] == voxel.UNKNOWN and hc[cf] >= 0:
             assert hc[cf] == pytest.approx(H[i, j, k])
 
 
@@ -227,14 +228,14 @@ def test_all_free_region_is_skipped_exactly():
     d = np.array([[1.0, 0.013, -0.007]])
     d /= np.linalg.norm(d)
     o = np.array([-0.3, 0.21, 0.19])
-    m = K.evaluate_views(lo, np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 9.0),
+    m = VM.evaluate_views(lo, np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 9.0),
                          L_FREE, L_OCC, 1)[0]
-    assert m[K.M_RAYS] == 1 and m[K.M_OC_RAYS] == 1 and m[K.M_OC_O] == 1 and m[K.M_RSV] == 1
-    assert m[K.M_FIG] == 0 and m[K.M_SIG] == 0 and m[K.M_UN_O] == 0
+    assert m[VM.M_RAYS] == 1 and m[VM.M_OC_RAYS] == 1 and m[VM.M_OC_O] == 1 and m[VM.M_RSV] == 1
+    assert m[VM.M_FIG] == 0 and m[VM.M_SIG] == 0 and m[VM.M_UN_O] == 0
     lo[33] = -1.5  # now the ray crosses the unknown end: 6 voxels
-    m = K.evaluate_views(lo, np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 9.0),
+    m = VM.evaluate_views(lo, np.zeros(3), 0.1, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 9.0),
                          L_FREE, L_OCC, 1)[0]
-    assert m[K.M_UN_O] == 1 and m[K.M_N_POSTERIOR] == 5 and m[K.M_FIG] == pytest.approx(6 * math.log(2))
+    assert m[VM.M_UN_O] == 1 and m[VM.M_N_POSTERIOR] == 5 and m[VM.M_FIG] == pytest.approx(6 * math.log(2))
 
 
 def _grid_rays(w, h, f):
@@ -245,12 +246,12 @@ def _grid_rays(w, h, f):
 
 def test_sparse_rays_cover_the_image_once():
     d = _grid_rays(10, 7, 20.0)
-    assert K.ray_grid_width(d) == 10
-    assert K.ray_grid_width(np.random.default_rng(0).normal(size=(12, 3)) + [0, 0, 5]) == 0
+    assert VM.ray_grid_width(d) == 10
+    assert VM.ray_grid_width(np.random.default_rng(0).normal(size=(12, 3)) + [0, 0, 5]) == 0
     for a in (1, 2):
-        idx, w = K.sparse_rays(len(d), 10, a)
+        idx, w = VM.sparse_rays(len(d), 10, a)
         assert w.sum() == len(d) and len(np.unique(idx)) == len(idx)
-    idx, w = K.sparse_rays(len(d), 0, 2)
+    idx, w = VM.sparse_rays(len(d), 0, 2)
     assert len(idx) == len(d) and np.all(w == 1)
 
 
@@ -260,8 +261,8 @@ def test_hrt_tracing_every_ray_equals_uniform_where_every_cell_is_refined(a):
     # voxel is refined HRT = uniform
     for seed in range(100):  # a map without all-unknown cells (all-free ones are skipped exactly)
         lo = _random_map(np.random.default_rng(seed), (16, 12, 8))
-        bits, _, _ = K.coarse_summary(lo, K.entropy_grid(lo), a, L_FREE, L_OCC)
-        if not np.any(bits == K.C_UNKNOWN):
+        bits, _, _ = cells.coarse_summary(lo, voxel.entropy_grid(lo), a, L_FREE, L_OCC)
+        if not np.any(bits == voxel.C_UNKNOWN):
             break
     dirs = _grid_rays(24, 18, 19.73)
     # generic positions: a grid ray through a voxel edge is a tie the two traversals may
@@ -269,9 +270,9 @@ def test_hrt_tracing_every_ray_equals_uniform_where_every_cell_is_refined(a):
     pos = np.array([[0.8137, 0.6171, -0.6093], [0.3091, 0.2053, -0.3127]])
     rot = np.repeat(np.eye(3)[None], 2, 0)
     tn, tf = np.zeros(len(dirs)), np.full(len(dirs), 3.0)
-    assert not np.any(bits == K.C_UNKNOWN)
-    uni = K.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
-    hrt = K.evaluate_views_hrt(lo, a, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1, width=0)
+    assert not np.any(bits == voxel.C_UNKNOWN)
+    uni = VM.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)
+    hrt = VM.evaluate_views_hrt(lo, a, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1, width=0)
     np.testing.assert_allclose(hrt, uni, rtol=1e-9)
 
 
@@ -283,8 +284,8 @@ def test_hrt_block_rays_estimate_the_uniform_metrics():
     pos = np.array([[1.2, 1.2, -1.0]])
     rot = np.eye(3)[None]
     tn, tf = np.zeros(len(dirs)), np.full(len(dirs), 6.0)
-    uni = K.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)[0]
-    hrt = K.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)[0]
-    assert hrt[K.M_RAYS] == pytest.approx(uni[K.M_RAYS], rel=0.05)
-    assert hrt[K.M_SIG] == pytest.approx(uni[K.M_SIG], rel=0.15)
-    assert hrt[K.M_FIG] == pytest.approx(uni[K.M_FIG], rel=0.25)
+    uni = VM.evaluate_views(lo, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)[0]
+    hrt = VM.evaluate_views_hrt(lo, 2, np.zeros(3), 0.1, pos, rot, dirs, tn, tf, L_FREE, L_OCC, 1)[0]
+    assert hrt[VM.M_RAYS] == pytest.approx(uni[VM.M_RAYS], rel=0.05)
+    assert hrt[VM.M_SIG] == pytest.approx(uni[VM.M_SIG], rel=0.15)
+    assert hrt[VM.M_FIG] == pytest.approx(uni[VM.M_FIG], rel=0.25)

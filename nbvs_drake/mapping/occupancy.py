@@ -13,9 +13,8 @@ import os
 import numpy as np
 
 from ..config import MapperConfig, Scenario
-from . import kernels as K
-
-UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+from .raycast import integrate_scan
+from .voxel import FREE, OCCUPIED, UNKNOWN, classes_grid
 
 
 def logit(p: float) -> float:
@@ -55,9 +54,6 @@ class GridSpec:
         """Voxel centres (nx, ny, nz, 3)."""
         ax = [self.bmin[a] + (np.arange(self.dims[a]) + 0.5) * self.res for a in range(3)]
         return np.stack(np.meshgrid(*ax, indexing="ij"), axis=-1)
-
-    def contains(self, pts: np.ndarray) -> np.ndarray:
-        return np.all((pts >= self.bmin) & (pts < self.bmax), axis=-1)
 
 
 def grid_for_scenario(sc: Scenario) -> GridSpec:
@@ -109,10 +105,8 @@ class OccupancyMap:
 
     # ---- classes -------------------------------------------------------------------
     def classes(self) -> np.ndarray:
-        c = np.full(self.spec.dims, UNKNOWN, np.int8)
-        c[self.logodds < self.model.l_free] = FREE
-        c[self.logodds > self.model.l_occ] = OCCUPIED
-        return c
+        """int8 class of every voxel (voxel.FREE, UNKNOWN, OCCUPIED)."""
+        return classes_grid(np.ascontiguousarray(self.logodds), self.model.l_free, self.model.l_occ)
 
     def counts(self) -> dict:
         c = self.classes()
@@ -121,8 +115,7 @@ class OccupancyMap:
 
     def unknown_mask(self) -> np.ndarray:
         """Voxels of the unknown class (l_free <= l <= l_occ)."""
-        lo = self.logodds
-        return (lo >= self.model.l_free) & (lo <= self.model.l_occ)
+        return self.classes() == UNKNOWN
 
     def free_at(self, points: np.ndarray) -> np.ndarray:
         """Whether each point lies in a voxel of the free class (False outside the map)."""
@@ -131,7 +124,8 @@ class OccupancyMap:
         inside = np.all((idx >= 0) & (idx < np.array(self.spec.dims)), axis=1)
         out = np.zeros(len(P), bool)
         i = idx[inside]
-        out[inside] = self.logodds[i[:, 0], i[:, 1], i[:, 2]] < self.model.l_free
+        lo = np.ascontiguousarray(self.logodds[i[:, 0], i[:, 1], i[:, 2]])
+        out[inside] = classes_grid(lo, self.model.l_free, self.model.l_occ) == FREE
         return out
 
     def free_hits(self, points: np.ndarray, table_clearance: float) -> np.ndarray:
@@ -181,8 +175,8 @@ class OccupancyMap:
             hit[len(points) - n_free:] = False
         lo = np.array(self.logodds, copy=True)
         m = self.model
-        n_upd = K.integrate_scan(lo, self.spec.bmin.astype(np.float64), self.spec.res, origin, points, hit,
-                                 m.l_hit, m.l_miss, m.l_min, m.l_max)
+        n_upd = integrate_scan(lo, self.spec.bmin.astype(np.float64), self.spec.res, origin, points, hit,
+                               m.l_hit, m.l_miss, m.l_min, m.l_max)
         obj = np.concatenate([self.object_points, points[hit].astype(np.float32)])
         new = OccupancyMap(self.spec, m, lo, obj, self.scan_count + 1, self.wbox_min, self.wbox_max)
         return new, {"points": int(len(points) - n_free), "no_return_rays": n_free,
@@ -197,7 +191,7 @@ class OccupancyMap:
         """The unknown and occupied voxels of W_box as at most `max_boxes` merged boxes
         (centre, size) in metres, conservative (see mapping.boxes). Returns (boxes, block)."""
         from .boxes import conservative_boxes
-        mask = self.in_wbox() & (self.logodds >= self.model.l_free)  # unknown or occupied
+        mask = self.in_wbox() & (self.classes() != FREE)  # unknown or occupied
         boxes, block = conservative_boxes(mask, max_boxes)
         res = self.spec.res
         out = [(self.spec.bmin + (lo + hi) * res / 2, (hi - lo) * res) for lo, hi in boxes]

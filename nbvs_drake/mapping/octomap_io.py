@@ -13,14 +13,15 @@ import os
 
 import numpy as np
 
-from .occupancy import FREE, OCCUPIED, OccupancyMap
+from .occupancy import OccupancyMap
+from .voxel import FREE, OCCUPIED
 
 TREE_DEPTH = 16
 _FREE_BITS, _OCC_BITS, _INNER_BITS = 0b01, 0b10, 0b11  # child i: free sets bit 2i, occupied bit 2i+1
 
 
 def _serialize(classes: np.ndarray, off: np.ndarray):
-    """Pre-order binary node stream of the tree over `classes` (0 unknown, 1 free, 2 occupied)
+    """Pre-order binary node stream of the tree over `classes` (voxel.FREE, UNKNOWN, OCCUPIED)
     whose voxel (0, 0, 0) has key `off`. Returns (bytes, number of nodes)."""
     dims = np.array(classes.shape)
     lo_key, hi_key = off, off + dims  # [lo, hi) per axis

@@ -19,7 +19,8 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
-from .kernels import _axis_start, _clip, _dda_step
+from .raycast import axis_start, clip_ray, dda_step
+from .voxel import OCCUPIED, UNKNOWN
 
 
 @nb.njit(cache=True)
@@ -33,7 +34,7 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
     for i in range(nx):
         for j in range(ny):
             for k in range(nz):
-                if cls[i, j, k] != 1:
+                if cls[i, j, k] != UNKNOWN:
                     continue
                 px = bmin[0] + (i + 0.5) * res - o[0]
                 py = bmin[1] + (j + 0.5) * res - o[1]
@@ -67,14 +68,14 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
         L = math.sqrt(dx * dx + dy * dy + dz * dz)
         dx, dy, dz = dx / L, dy / L, dz / L
         dcz = R[0, 2] * dx + R[1, 2] * dy + R[2, 2] * dz  # depth per unit length
-        t0, t1 = _clip(o[0], o[1], o[2], dx, dy, dz, z_near / dcz, z_far / dcz, bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        t0, t1 = clip_ray(o[0], o[1], o[2], dx, dy, dz, z_near / dcz, z_far / dcz, bmin[0], bmin[1], bmin[2], ex, ey, ez)
         if t0 > t1:
             visited[flat] = tag
             continue
         rays += 1
-        i, si, ti, di = _axis_start(o[0], dx, t0, bmin[0], res, nx)
-        j, sj, tj, dj = _axis_start(o[1], dy, t0, bmin[1], res, ny)
-        k, sk, tk, dk = _axis_start(o[2], dz, t0, bmin[2], res, nz)
+        i, si, ti, di = axis_start(o[0], dx, t0, bmin[0], res, nx)
+        j, sj, tj, dj = axis_start(o[1], dy, t0, bmin[1], res, ny)
+        k, sk, tk, dk = axis_start(o[2], dz, t0, bmin[2], res, nz)
         seen_unknown = False
         occluded = False
         while True:
@@ -82,9 +83,9 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
             c = cls[i, j, k]
             if occluded:
                 visited[f] = tag
-            elif c == 2:
+            elif c == OCCUPIED:
                 occluded = True
-            elif c == 1:
+            elif c == UNKNOWN:
                 if visited[f] != tag:
                     visited[f] = tag
                     if seen_unknown:
@@ -94,8 +95,8 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
                 seen_unknown = True
             if min(ti, tj, tk) >= t1:
                 break
-            i, j, k, ti, tj, tk, inside = _dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk,
-                                                    0, nx - 1, 0, ny - 1, 0, nz - 1)
+            i, j, k, ti, tj, tk, inside = dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk,
+                                                   0, nx - 1, 0, ny - 1, 0, nz - 1)
             if not inside:
                 break
         visited[flat] = tag  # the target itself is intercepted (occluded or counted)
@@ -104,8 +105,8 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
 
 @nb.njit(cache=True, parallel=True)
 def voxel_sorted_views(cls, bmin, res, cam_pos, cam_rot, fx, fy, cx, cy, w, h, z_near, z_far, n_chunks):
-    """(N, 3) per view: n_first, n_posterior, rays cast. cls: int8 classes (0 free,
-    1 unknown, 2 occupied); cam_rot columns are the camera axes (+z forward)."""
+    """(N, 3) per view: n_first, n_posterior, rays cast. cls: int8 classes (voxel.classes_grid);
+    cam_rot columns are the camera axes (+z forward)."""
     n = cam_pos.shape[0]
     out = np.zeros((n, 3))
     visited = np.zeros((n_chunks, cls.size), np.int32)

@@ -53,6 +53,19 @@ def pose_errors(records: list[dict]) -> dict:
             "icp_applied": int(sum(1 for r in rows if (r["scan"].get("icp") or {}).get("applied")))}
 
 
+def prediction_summary(records: list[dict]) -> dict:
+    """Predicted against revealed unknown volume over the run's plans (prediction_r2,
+    prediction_slope, prediction_pairs; NaN written as null) and the scans that returned
+    fewer than evaluation.BLIND_SCAN_POINTS object points (blind_scans: how many;
+    blind_scan_list: which)."""
+    from .evaluation import BLIND_SCAN_POINTS, prediction_fit
+    fit = prediction_fit(records)
+    clean = lambda v: None if v != v else round(v, 6)  # noqa: E731 - NaN -> null
+    blind = [r["iteration"] for r in records if r["scan"].get("object_points", BLIND_SCAN_POINTS) < BLIND_SCAN_POINTS]
+    return {"prediction_r2": clean(fit["r2"]), "prediction_slope": clean(fit["slope"]),
+            "prediction_pairs": fit["pairs"], "blind_scans": len(blind), "blind_scan_list": blind}
+
+
 def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat=None) -> dict:
     """`meshcat`: a pydrake Meshcat that shows the run live (robot, map, plans), or None."""
     from pydrake.systems.analysis import Simulator
@@ -142,6 +155,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "object_points": int(len(omap.object_points)),
         "relocalization": sc.mission.relocalization,
         "pose_error": pose_errors(records),
+        **prediction_summary(records),
         "sim_time_s": round(ctx.get_time(), 3),
         "times_s": {
             "plan": float(sum(p.get("plan_s", 0.0) for p in plans)),

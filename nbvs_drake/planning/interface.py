@@ -16,10 +16,11 @@ from ..mapping.occupancy import OccupancyMap
 #: the utility's factors as every strategy reports them: g = pos * reg * info * dist
 #: (Vasquez-Gomez et al. 2017 eq. 4; `info` is the information term of the scenario's
 #: planner.metric, named in `metric`); rho: the path's length (eq. 8); du: the deterministic
-#: utility; eu: the expected utility's summary (utility "eu"); un_o, oc_o, overlap, un_total:
-#: the simulated scan's unknown and occupied voxels, its registration overlap and the map's
-#: unknown voxels
-FACTOR_NAMES = ("pos", "reg", "info", "metric", "dist", "rho", "du", "eu", "un_o", "oc_o", "overlap", "un_total")
+#: utility; eu: the expected utility's summary (utility "eu"); un_o, un_touched, oc_o, overlap,
+#: un_total: the simulated scan's unknown voxels seen first and touched, its occupied voxels,
+#: its registration overlap and the map's unknown voxels
+FACTOR_NAMES = ("pos", "reg", "info", "metric", "dist", "rho", "du", "eu", "un_o", "un_touched", "oc_o", "overlap",
+                "un_total")
 
 
 @dc.dataclass(frozen=True)

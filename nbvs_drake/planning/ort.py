@@ -90,7 +90,8 @@ class ORTPlanner:
             states = rollout(tree.q[0], controls, self.sc.robot.control_dt)
             return PlanResult("ok", tree.q[i].copy(), controls, states, "ort", float(g[b]), {
                 "pos": 1.0, "reg": 1.0, "info": float(info[b]), "metric": p.metric, "dist": float(dist[b]),
-                "rho": float(rho[b]), "un_o": int(met[b, K.M_UN_O]), "oc_o": int(met[b, K.M_OC_O]),
+                "rho": float(rho[b]), "un_o": int(met[b, K.M_UN_O]),
+                "un_touched": int(met[b, K.M_UN_O] + met[b, K.M_N_POSTERIOR]), "oc_o": int(met[b, K.M_OC_O]),
                 "overlap": float(overlap[b]), "un_total": int(un_total), "du": float(g[b]),
                 "depth": len(tree.path_to(i)) - 1})
 

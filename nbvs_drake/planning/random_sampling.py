@@ -56,7 +56,7 @@ class RandomSamplingPlanner:
         t = time.perf_counter()
         met = self.evaluator.evaluate(omap, cand)
         times["visibility_s"] = time.perf_counter() - t
-        un, oc = met[:, K.M_UN_O], met[:, K.M_OC_O]
+        un, oc, post = met[:, K.M_UN_O], met[:, K.M_OC_O], met[:, K.M_N_POSTERIOR]
         stages["visibility"] = int(np.count_nonzero(met[:, K.M_RAYS] > 0))
         overlap = registration_overlap(met)
         reg = overlap > self.overlap_h if self.overlap_h is not None else np.ones(len(cand), bool)
@@ -88,7 +88,8 @@ class RandomSamplingPlanner:
                     du = 1.0 * 1.0 * info[i] * dist  # pos = reg = 1 for the survivors
                     reachable.append(PlanResult("ok", cand[i], controls, states, kind, float(du), {
                         "pos": 1.0, "reg": 1.0, "info": float(info[i]), "metric": p.metric, "dist": float(dist),
-                        "rho": float(rho), "un_o": int(un[i]), "oc_o": int(oc[i]), "overlap": float(overlap[i]),
+                        "rho": float(rho), "un_o": int(un[i]), "un_touched": int(un[i] + post[i]), "oc_o": int(oc[i]),
+                        "overlap": float(overlap[i]),
                         "un_total": int(un_total), "du": float(du)}))
                 yield reachable, tried
 

@@ -10,7 +10,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from ..evaluation import coverage
+from ..evaluation import coverage, plan_prediction, scan_outcome
 from ..mapping.occupancy import OccupancyMap
 from .messages import ControllerStatus, PlanReport, ScanReport
 
@@ -43,8 +43,9 @@ class MissionRecorder(LeafSystem):
     after scan k (coverage against the ground truth at 3 mm, 5 mm and one voxel; unknown
     voxels) and appends iteration k to the IterationLog with the scan and plan reports, the
     true state at the scan, the believed (dead-reckoned) and the corrected (registered)
-    states, and the executed (true) path of the motion that led to scan k. It keeps the map
-    snapshot of every iteration in `maps` (for the replay).
+    states, and the executed (true) path of the motion that led to scan k; from scan 2 on,
+    the prediction of the plan that led to it and the scan's outcome (`evaluation`). It keeps
+    the map snapshot of every iteration in `maps` (for the replay).
 
     Input ports:
       - map (abstract OccupancyMap)
@@ -85,7 +86,8 @@ class MissionRecorder(LeafSystem):
         return self._path[::2] + self._path[-1:] if self._path else []
 
     def _publish(self, context):
-        if not ControllerStatus.of(self._status.Eval(context)).idle:  # moving: sample the executed path (a sink's side effect, as the log)
+        # moving: sample the executed path (a sink's side effect, as the log)
+        if not ControllerStatus.of(self._status.Eval(context)).idle:
             self._path.append(self._r(self._true.Eval(context)))
         report: PlanReport = self._plan.Eval(context)
         k = report.scan
@@ -117,6 +119,11 @@ class MissionRecorder(LeafSystem):
             "coverage_s": t_cov,
             "wall_s": now - self._t_last,
         }
+        if self.maps and self.log.records:  # the plan that led to this scan: its prediction, and what came
+            prev_plan = self.log.records[-1]["plan"]
+            if prev_plan.get("status") == "ok":
+                rec["prediction"] = plan_prediction(prev_plan.get("factors", {}), omap.voxel_volume())
+            rec["outcome"] = scan_outcome(self.maps[-1], omap)
         self._t_last = now
         self._path = []
         self.maps.append(omap)

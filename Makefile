@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml scripts/setup.sh
 	touch $(STAMP)
 
 run: setup
-	$(VENV)/bin/nbvs reconstruct --out $(OUT)
+	$(VENV)/bin/nbvs reconstruct --out $(OUT) --overwrite
 
 test: setup
 	$(VENV)/bin/python -m pytest -q -m "not slow"

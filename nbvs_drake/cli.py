@@ -10,16 +10,14 @@ from .errors import NbvsError
 
 
 def _cmd_reconstruct(args):
-    from .config import load_scenario
-    from .mission import run_mission
-    sc = load_scenario(args.scenario, seed=args.seed, settings=args.set)
-    out = Path(args.out or f"results/{sc.name}")
+    from .api import reconstruct
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat, MeshcatParams
         meshcat = Meshcat(MeshcatParams(host="localhost", port=args.meshcat_port))
         print(f"nbvs: live view (Meshcat) at {meshcat.web_url()}", flush=True)
-    run_mission(sc, out, verbose=not args.quiet, meshcat=meshcat)
+    reconstruct(args.scenario, out=args.out, seed=args.seed, overrides=args.set, overwrite=args.overwrite,
+                verbose=not args.quiet, meshcat=meshcat)
     if meshcat is not None and sys.stdin.isatty():
         try:
             input(f"nbvs: the live view stays at {meshcat.web_url()}; press Enter to close it ")
@@ -28,23 +26,31 @@ def _cmd_reconstruct(args):
 
 
 def _cmd_diagram(args):
-    from . import DIAGRAMS_DIR
     from .config import load_scenario
+    from .resources import builtin_scenarios, diagrams_dir, source_checkout
     from .wiring import write_wiring
-    paths = sorted(DIAGRAMS_DIR.glob("*.yaml")) if args.all else [args.scenario]
+    # beside the built-in scenarios in a source checkout (the repository's diagrams/); a
+    # wheel install does not write into its own package: ./diagrams instead
+    folder = diagrams_dir() if source_checkout() else Path("diagrams")
+    paths = list(builtin_scenarios().values()) if args.all else [args.scenario]
     for p in paths:
         sc = load_scenario(p)
-        out = Path(args.out) if (args.out and not args.all) else DIAGRAMS_DIR / f"{sc.name}_wiring"
+        out = Path(args.out) if (args.out and not args.all) else folder / f"{sc.name}_wiring"
         for f in write_wiring(sc, out):
             print(f)
 
 
 def main(argv=None) -> int:
+    from .resources import builtin_scenarios
     ap = argparse.ArgumentParser(prog="nbvs", description="Next-best-view/state planning on a Drake diagram")
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("reconstruct", help="reconstruct the scenario's object; write model, metrics and plots")
-    r.add_argument("--scenario", default=None, help="scenario YAML (default: diagrams/default.yaml)")
+    r.add_argument("--scenario", default=None,
+                   help="scenario YAML or a built-in scenario's name (default: default); built-in: "
+                        + ", ".join(builtin_scenarios()))
     r.add_argument("--out", default=None, help="output folder (default: results/<scenario name>)")
+    r.add_argument("--overwrite", action="store_true",
+                   help="replace a finished run in the output folder (without it such a folder is refused)")
     r.add_argument("--seed", type=int, default=None, help="override the scenario's seed")
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one scenario field, e.g. --set noise.sigma_w=0.14 --set planner.top_k=50 "
@@ -56,9 +62,10 @@ def main(argv=None) -> int:
                    help="Meshcat's port (default: the first free one from 7000)")
     r.set_defaults(func=_cmd_reconstruct)
     d = sub.add_parser("diagram", help="write the Graphviz wiring of a scenario's diagram")
-    d.add_argument("--scenario", default=None)
+    d.add_argument("--scenario", default=None, help="scenario YAML or built-in name (default: default)")
     d.add_argument("--out", default=None, help="output path without extension")
-    d.add_argument("--all", action="store_true", help="every scenario in diagrams/")
+    d.add_argument("--all", action="store_true",
+                   help="every built-in scenario (written into the repository's diagrams/ in a source checkout)")
     d.set_defaults(func=_cmd_diagram)
     b = sub.add_parser("bench", help="benchmarks, printing JSON")
     b.add_argument("what", choices=["visibility", "planning", "motion"])

@@ -231,17 +231,15 @@ class Scenario:
 
 
 def load_scenario(path=None, *, seed=None, settings=()) -> "Scenario":
-    """Loads and validates a scenario YAML (``None``: the built-in default scenario).
-    `settings`: overrides "section.field=value" (YAML values, e.g. "noise.sigma_w=0.14",
-    "planner.top_k=50", "noise.sigma_arm=[0.01, 0.01, 0, 0, 0]"), applied in order."""
+    """Loads and validates a scenario YAML: `path` is a file, a built-in scenario's name
+    (``"teapot_eu_mu"``) or ``None`` (the built-in default scenario); see
+    `resources.scenario_path`. `settings`: overrides "section.field=value" (YAML values, e.g.
+    "noise.sigma_w=0.14", "planner.top_k=50", "noise.sigma_arm=[0.01, 0.01, 0, 0, 0]"),
+    applied in order."""
     from pydrake.common.yaml import yaml_load_typed
 
-    if path is None:
-        from . import DEFAULT_SCENARIO
-        path = DEFAULT_SCENARIO
-    path = Path(path)
-    if not path.is_file():
-        raise ScenarioError(f"scenario file not found: {path}")
+    from .resources import scenario_path
+    path = scenario_path(path)
     try:
         text = path.read_text()
     except OSError as e:

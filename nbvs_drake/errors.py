@@ -11,3 +11,7 @@ class ScenarioError(NbvsError):
 
 class MeshError(NbvsError):
     """An object mesh is missing, unreadable or empty."""
+
+
+class RunExistsError(NbvsError):
+    """The output folder holds a finished run (its summary.json) and overwriting was not asked for."""

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import MODELS_DIR
+from .resources import model_path
 from .errors import ScenarioError
 
 ARM_JOINTS = ["katana_j1", "katana_j2", "katana_j3", "katana_j4", "katana_j5"]
@@ -19,9 +19,7 @@ NU = 7  # [v, w_base, w1..w5]
 
 
 def urdf_path(name: str) -> Path:
-    p = Path(name)
-    if not p.is_absolute():
-        p = MODELS_DIR / p
+    p = model_path(name)
     if not p.is_file():
         raise ScenarioError(f"robot URDF not found: {p}")
     return p

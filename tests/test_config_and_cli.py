@@ -46,9 +46,8 @@ def test_bad_scenarios_get_one_line_errors(capsys, tmp_path, yaml_text, expect):
 def test_settings_override_fields_through_the_typed_schema():
     """`nbvs reconstruct --set section.field=value`: the value is YAML, loaded into the same
     typed dataclasses as the file; the other fields keep the file's values."""
-    from nbvs_drake import DIAGRAMS_DIR
-    base = load_scenario(DIAGRAMS_DIR / "teapot_eu_mu.yaml")
-    sc = load_scenario(DIAGRAMS_DIR / "teapot_eu_mu.yaml", seed=4,
+    base = load_scenario("teapot_eu_mu")  # a built-in scenario, by name
+    sc = load_scenario("teapot_eu_mu", seed=4,
                        settings=["noise.sigma_w=0.14", "planner.top_k=50", "noise.sigma_arm=[0.01, 0, 0, 0, 0]",
                                  "name=teapot_eu_mu_w014"])
     assert (sc.noise.sigma_w, sc.planner.top_k, sc.noise.sigma_arm[0], sc.name, sc.seed) == \
@@ -75,6 +74,25 @@ def test_bad_settings_get_one_line_errors(capsys, tmp_path, setting, expect):
 def test_missing_scenario_file(capsys, tmp_path):
     rc = main(["reconstruct", "--scenario", str(tmp_path / "none.yaml")])
     assert rc == 2 and "scenario file not found" in capsys.readouterr().err
+
+
+def test_scenario_by_builtin_name():
+    """`--scenario teapot_eu_mu`: a built-in scenario by name (with or without .yaml), the
+    same as its file; its relative paths resolve against the built-in scenarios' folder."""
+    from nbvs_drake.resources import diagrams_dir, scenario_path
+    sc = load_scenario("teapot_eu_mu")
+    assert sc == load_scenario(diagrams_dir() / "teapot_eu_mu.yaml") == load_scenario("teapot_eu_mu.yaml")
+    assert sc.name == "teapot_eu_mu" and sc.base_dir == str(diagrams_dir())
+    assert scenario_path(None) == scenario_path("default") and load_scenario(None) == load_scenario("default")
+
+
+def test_unknown_scenario_name_lists_the_builtin_ones(capsys, tmp_path):
+    rc = main(["reconstruct", "--scenario", "teapot_eu", "--out", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith("nbvs: error: scenario file not found: teapot_eu (neither a file nor a built-in scenario")
+    assert err.endswith("built-in: cluttered_room, default, teapot_du, teapot_du_mu, teapot_eu_mu)")
+    assert not (tmp_path / "out").exists()
 
 
 def test_unreadable_mesh(tmp_path, capsys):

@@ -116,7 +116,8 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     for cell in nb.cells:
         if cell.cell_type == "code":
             exec(compile(cell.source, "coverage_analysis.ipynb", "exec"), ns)
-    assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"]) == s["scans"]
+    assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"].records) == s["scans"]
+    assert ns["runs"]["small"].summary == json.loads((out / "summary.json").read_text())  # RunResult.load
     assert ns["agg"][0]["coverage_mean"] == pytest.approx(s["coverage"])
 
 
@@ -172,8 +173,8 @@ def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric,
 
 
 def test_every_scenario_in_diagrams_loads():
-    from nbvs_drake import DIAGRAMS_DIR
-    names = {load_scenario(p).name for p in sorted(DIAGRAMS_DIR.glob("*.yaml"))}
+    from nbvs_drake.resources import builtin_scenarios
+    names = {load_scenario(p).name for p in builtin_scenarios().values()}
     assert {"default", "teapot_du", "teapot_du_mu", "teapot_eu_mu", "cluttered_room"} <= names
 
 
@@ -181,8 +182,7 @@ def test_every_scenario_in_diagrams_loads():
 def test_noisy_scenarios_run(tmp_path, name):
     """A small version of each noisy scenario (fewer candidates, rollouts, tree nodes):
     noisy execution, registration, EU, and (cluttered_room) the chairs and RRT."""
-    from nbvs_drake import DIAGRAMS_DIR
-    sc = load_scenario(DIAGRAMS_DIR / f"{name}.yaml")
+    sc = load_scenario(name)
     sc.mission.max_scans = 3
     sc.planner.n_candidates = 1500
     sc.planner.eu_samples = 40
@@ -206,8 +206,7 @@ def test_a_collision_stops_the_run_and_keeps_the_colliding_trajectory(tmp_path):
     finished iteration is in iterations.jsonl, and the colliding trajectory, which no scan
     ended, is kept in summary.json (up to the collision) and drawn in paths.png and replay.html."""
     import numpy as np
-    from nbvs_drake import DIAGRAMS_DIR
-    sc = load_scenario(DIAGRAMS_DIR / "default.yaml")
+    sc = load_scenario("default")
     sc.mission.max_scans = 3
     sc.mission.on_collision = "stop"
     sc.planner.n_candidates = 1500

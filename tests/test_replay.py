@@ -120,12 +120,11 @@ def test_replay_renders_in_headless_chromium(live_run, tmp_path):
 def test_paths_plot_draws_the_chairs_of_the_cluttered_room(tmp_path):
     """The top view shows every known obstacle: cluttered_room's nine chairs (seat and
     backrest each) beside the table, and none in the plain scene."""
-    from nbvs_drake import DIAGRAMS_DIR
     from nbvs_drake.config import load_scenario
     from nbvs_drake.plots import plot_paths
-    room = load_scenario(DIAGRAMS_DIR / "cluttered_room.yaml")
+    room = load_scenario("cluttered_room")
     drawn = plot_paths([], tmp_path / "room.png", room.scene)
     assert sorted(drawn) == sorted([f"chair{k}_{part}" for k in (0, 1, 2, 3, 4, 6, 7, 8, 9)
                                     for part in ("seat", "back")])
     assert (tmp_path / "room.png").stat().st_size > 5_000
-    assert plot_paths([], tmp_path / "plain.png", load_scenario(DIAGRAMS_DIR / "teapot_du.yaml").scene) == []
+    assert plot_paths([], tmp_path / "plain.png", load_scenario("teapot_du").scene) == []

@@ -242,11 +242,12 @@ print(json.dumps({"file": nbvs_drake.__file__, "models": str(resources.models_di
     assert not (v["cwd"] / "results").exists()
 
 
+@pytest.mark.slow
 def test_wheel_reconstructs_by_name_with_the_cli_and_the_api(fresh_venv):
     """Two-scan runs from the installed wheel (cwd outside the repository): the CLI by
     scenario name, into the default results/<name>; and the Python API, whose numbers are the
-    repository's. About a minute: the first run there compiles the numba kernels afresh (their
-    cache sits beside the installed modules)."""
+    repository's. 60-90 s (slow: the first run there compiles the numba kernels afresh, their
+    cache sitting beside the installed modules); the test above is its quick variant."""
     v = fresh_venv
     sets = [a for s in TINY for a in ("--set", s)]
     _run(v, v["bin"] / "nbvs", "reconstruct", "--scenario", "teapot_du", "--quiet", *sets)

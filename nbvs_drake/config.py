@@ -129,9 +129,20 @@ class MapperConfig:
 
 @dc.dataclass
 class PlannerConfig:
-    #: "random_sampling" (seed 000), "ort" (seed 003) or "view_sampling" (seed 001 + IK)
+    #: "random_sampling" (seed 000), "ort" (seed 003) or "view_sampling" (seed 001 + IK);
+    #: baselines: "view_circle" (a fixed circle of views around W_box) or "random_views"
+    #: (the first random view that looks at W_box and can be reached; no ranking)
     strategy: str = "random_sampling"
     view_poses: int = 60  #: view_sampling: poses per iteration, spread over the clusters
+    #: view_circle: views evenly spaced on a horizontal circle around W_box's centre, each
+    #: aimed at the centre (the start scan counts as the first)
+    circle_views: int = 12
+    #: view_circle: the cameras' horizontal distance from W_box's centre (m); 0: automatic
+    #: (0.1 m beyond z_near + W_box's larger half-extent and its footprint corners + 0.15 m:
+    #: 0.9 m in the default scene)
+    circle_range: float = 0.0
+    #: view_circle: the cameras' height (m); 0: automatic (the middle of W_box's upper half)
+    circle_height: float = 0.0
     #: information term of the utility: "sur" (seed 000 surface factor, = VUV / un_total),
     #: "fig", "sig", "vuv", "rsv" (seed 003; each normalised by the unknown voxels),
     #: "seed001" (voxel-sorted ray casting score of seed 001)
@@ -363,8 +374,20 @@ def validate(sc: Scenario) -> Scenario:
         nvox *= math.ceil((e + 2 * m.margin) / m.voxel_size)
     _require(nvox <= 20_000_000, f"map too large: {nvox} voxels (raise mapper.voxel_size)")
 
-    _require(p.strategy in ("random_sampling", "ort", "view_sampling"),
-             f"planner.strategy must be 'random_sampling', 'ort' or 'view_sampling', got {p.strategy!r}")
+    _require(p.strategy in ("random_sampling", "ort", "view_sampling", "view_circle", "random_views"),
+             "planner.strategy must be one of random_sampling, ort, view_sampling, view_circle, random_views, "
+             f"got {p.strategy!r}")
+    _require(p.circle_views >= 2, f"planner.circle_views must be >= 2, got {p.circle_views}")
+    _require(_finite(p.circle_range) and p.circle_range >= 0,
+             f"planner.circle_range must be 0 (automatic) or > 0 (m), got {p.circle_range}")
+    _require(_finite(p.circle_height) and (p.circle_height == 0 or p.circle_height > s.table_height),
+             f"planner.circle_height must be 0 (automatic) or above the table top ({s.table_height} m), got {p.circle_height}")
+    if p.strategy == "view_circle" and p.circle_range:
+        half = [(b - a) / 2 for a, b in zip(s.bbox_min, s.bbox_max)]
+        h = p.circle_height or s.bbox_min[2] + 0.75 * (s.bbox_max[2] - s.bbox_min[2])
+        _require(p.circle_range > math.hypot(half[0], half[1]) or not s.bbox_min[2] <= h <= s.bbox_max[2],
+                 f"planner.circle_range {p.circle_range} m puts the view circle inside W_box (its footprint corners "
+                 f"are {math.hypot(half[0], half[1]):.3f} m from the centre)")
     _require(p.view_poses >= 1, f"planner.view_poses must be >= 1, got {p.view_poses}")
     _require(p.metric in ("sur", "fig", "sig", "vuv", "rsv", "seed001"),
              f"planner.metric must be one of sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
@@ -406,4 +429,7 @@ def validate(sc: Scenario) -> Scenario:
              f"mission.stop_min_surface must be in [0, 1), got {mi.stop_min_surface}")
     _require(_finite(mi.stop_min_utility) and 0 <= mi.stop_min_utility < 1,
              f"mission.stop_min_utility must be in [0, 1), got {mi.stop_min_utility}")
+    _require(p.strategy not in ("view_circle", "random_views") or not (mi.stop_min_surface or mi.stop_min_utility),
+             f"mission.stop_min_surface/stop_min_utility stop on the best candidate's score; the baseline "
+             f"{p.strategy} does not rank its views: set both to 0")
     return sc

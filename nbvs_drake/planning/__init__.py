@@ -25,6 +25,9 @@ def make_planner(sc, kin, wbox_model=None) -> "Planner":
     motion = MotionPlanner(sc, kin, sampler)
     overlap_h = None if p.strategy == "view_sampling" else p.overlap_h
     utility = make_utility(sc, evaluator, motion, overlap_h)
+    if p.strategy in ("view_circle", "random_views"):
+        from .baselines import make_baseline
+        return make_baseline(sc, kin, sampler, evaluator, obstacles, motion, utility, overlap_h)
     if p.strategy == "ort":
         from .ort import ORTPlanner
         return ORTPlanner(sc, sampler, evaluator, obstacles, motion, utility, overlap_h)

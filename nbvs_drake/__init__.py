@@ -13,14 +13,3 @@ from .api import RunResult, reconstruct
 __version__ = "0.1.0"
 
 __all__ = ["RunResult", "reconstruct", "__version__"]
-
-#: old names of the data folders (before `nbvs_drake.resources`), kept for code that still
-#: imports them; new code calls resources.models_dir(), diagrams_dir(), scenario_path()
-_OLD_NAMES = {"MODELS_DIR": "models_dir", "DIAGRAMS_DIR": "diagrams_dir", "DEFAULT_SCENARIO": "default_scenario_path"}
-
-
-def __getattr__(name):
-    if name in _OLD_NAMES:
-        from . import resources
-        return getattr(resources, _OLD_NAMES[name])()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

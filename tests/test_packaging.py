@@ -56,7 +56,6 @@ def test_resources_come_from_the_repository_in_a_checkout():
     assert list(names) == sorted(names) and names == {p.stem: p for p in sorted((ROOT / "diagrams").glob("*.yaml"))}
     assert resources.scenario_path(None) == ROOT / "diagrams" / "default.yaml"
     # the old names still answer, from the same place
-    assert nbvs_drake.DIAGRAMS_DIR == resources.diagrams_dir() and nbvs_drake.MODELS_DIR == resources.models_dir()
     assert nbvs_drake.reconstruct is reconstruct and nbvs_drake.RunResult is RunResult
 
 

@@ -6,7 +6,7 @@ VENV := .venv
 STAMP := $(VENV)/.installed
 OUT ?= results/default
 
-.PHONY: setup run test test-slow bench diagrams clean
+.PHONY: setup run test test-slow lint bench diagrams clean
 
 setup: $(STAMP)
 
@@ -20,11 +20,23 @@ run: setup
 test: setup
 	$(VENV)/bin/python -m pytest -q -m "not slow"
 
+lint: setup
+	$(VENV)/bin/ruff check nbvs_drake tests scripts benchmarks
+
 test-slow: setup
 	$(VENV)/bin/python -m pytest -q -m slow
 
 bench: setup
 	$(VENV)/bin/python benchmarks/run_all.py
+
+# the papers' experiments (nbvs_drake/experiments/definitions/): `make experiment NAME=motion_noise
+# ARGS="--quick"` runs one into results/experiments/; `make results` assembles docs/results.md
+.PHONY: experiment results
+experiment: setup
+	$(VENV)/bin/nbvs experiment $(NAME) $(ARGS)
+
+results: setup
+	$(VENV)/bin/nbvs experiment report
 
 diagrams: setup
 	$(VENV)/bin/nbvs diagram --all

@@ -40,6 +40,41 @@ def _cmd_diagram(args):
             print(f)
 
 
+def _cmd_experiment(args):
+    import shlex
+    from .experiments import ExperimentError, listing, load_definition, run_experiment, with_objects, write_report
+    from .experiments.runner import make_executor
+    out = args.out or "results/experiments"
+    if args.list:
+        print(listing())
+        return
+    if not args.names:
+        raise ExperimentError("name an experiment (`nbvs experiment --list` lists them) or `report`")
+    if args.names == ["report"]:
+        dest, names = write_report(out, args.to or "docs/results.md")
+        print(f"{dest}: {len(names)} tables ({', '.join(names) or 'none found in ' + out})")
+        return
+    defs = [with_objects(load_definition(n), args.object) if args.object else load_definition(n) for n in args.names]
+    command = shlex.join(["nbvs", "experiment", *args.names]
+                         + (["--quick"] if args.quick else []) + (["--seeds", *map(str, args.seeds)] if args.seeds else [])
+                         + (["--jobs", str(args.jobs)] if args.jobs else []) + ["--executor", args.executor]
+                         + (["--address", args.address] if args.address else []) + ["--out", out]
+                         + (["--retry-failed"] if args.retry_failed else [])
+                         + [a for o in args.object for a in ("--object", o)])
+    ex = make_executor(args.executor, args.jobs, args.address)
+    failed = []
+    try:
+        for d in defs:
+            failed += run_experiment(d, out, quick=args.quick, seeds=args.seeds, executor=ex,
+                                     retry_failed=args.retry_failed, command=command)["failed"]
+    finally:
+        ex.close()
+    if failed:
+        print(f"nbvs: {len(failed)} runs failed ({', '.join(failed)}); their errors are in runs/<run>.failed.json, "
+              "`--retry-failed` reruns them", file=sys.stderr)
+        raise SystemExit(1)
+
+
 def main(argv=None) -> int:
     from .resources import builtin_scenarios
     ap = argparse.ArgumentParser(prog="nbvs", description="Next-best-view/state planning on a Drake diagram")
@@ -72,6 +107,27 @@ def main(argv=None) -> int:
     b.add_argument("--json", action="store_true", help="one line of JSON")
     b.add_argument("--views", type=int, default=400, help="views per timing batch")
     b.set_defaults(func=lambda a: __import__("nbvs_drake.bench", fromlist=["main"]).main(a))
+    e = sub.add_parser("experiment", help="run a paper's experiment (many runs) and write its table and figures",
+                       description="nbvs experiment NAME... runs what is missing of each experiment into "
+                                   "OUT/NAME/ (OUT/NAME_quick/ with --quick): runs/<run>/ per run, table.md, "
+                                   "table.json and figures; finished runs are kept and skipped. "
+                                   "`nbvs experiment --list` lists them; `nbvs experiment report` assembles "
+                                   "docs/results.md from the tables.")
+    e.add_argument("names", nargs="*", metavar="NAME",
+                   help="experiment name(s) (see --list) or definition YAML files; or `report`")
+    e.add_argument("--list", action="store_true", help="list the experiments: paper, table/figure, runs, cost")
+    e.add_argument("--seeds", nargs="+", type=int, default=None, help="replace the definition's seeds")
+    e.add_argument("--quick", action="store_true", help="the definition's small version (minutes)")
+    e.add_argument("--jobs", type=int, default=None, help="runs at a time (default: the number of cores)")
+    e.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="local processes (default) or Ray tasks")
+    e.add_argument("--address", default=None, help="--executor ray: a running Ray cluster (default: a local one)")
+    e.add_argument("--out", default=None, help="experiments folder (default: results/experiments)")
+    e.add_argument("--retry-failed", action="store_true", help="rerun the runs that failed before")
+    e.add_argument("--object", action="append", default=[], metavar="NAME=PATH",
+                   help="one more object level (an OBJ/PLY/STL mesh) for experiments with an object factor")
+    e.add_argument("--to", default=None, help="report: the markdown file (default: docs/results.md)")
+    e.set_defaults(func=_cmd_experiment)
     args = ap.parse_args(argv)
     try:
         args.func(args)

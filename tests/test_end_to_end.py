@@ -72,27 +72,10 @@ def test_true_pose_coverage_of_a_noise_free_run_is_the_runs_own(small_run):
     assert per["coverage_true_poses"][0] < per["coverage_true_poses"][-1]
 
 
-def test_mission_table_averages_coverage_per_scan_and_plots_it(small_run, tmp_path):
-    """scripts/mission_table.py --collect: per scenario the mean coverage per scan, a run
-    that stopped early counting with its last coverage, and the Fig. 12-style plot."""
-    out, s = small_run
-    cov = s["coverage_by_scan"]
-    for seed, by_scan in ((1, cov), (2, cov[:2])):  # the second run as if it had stopped after 2 scans
-        d = tmp_path / f"small_s{seed}"
-        d.mkdir()
-        (d / "summary.json").write_text(json.dumps(dict(s, seed=seed, coverage_by_scan=by_scan)))
-    mt = _script("mission_table")
-    rows = mt.collect(tmp_path)
-    _, agg = mt.table(rows)
-    assert agg[0]["coverage_by_scan_mean"] == pytest.approx(
-        [cov[0], cov[1], (cov[2] + cov[1]) / 2], abs=1e-6)
-    mt.main(["--collect", str(tmp_path)])
-    assert (tmp_path / "coverage_by_scan.png").stat().st_size > 10_000
-
-
 def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     """notebooks/coverage_analysis.ipynb, every code cell in order, as Jupyter would run it
-    from notebooks/ next to a results/ folder with one run and one mission table."""
+    from notebooks/ next to a results/ folder with one run and one experiment folder
+    (motion_noise with one finished run; the table marks the others missing)."""
     import shutil
     import sys
     from pathlib import Path
@@ -104,12 +87,13 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     out, s = small_run
     root = Path(__file__).resolve().parents[1]
     shutil.copytree(out, tmp_path / "results" / "small")
-    (tmp_path / "results" / "table" / "small_s1").mkdir(parents=True)
-    shutil.copy(out / "summary.json", tmp_path / "results" / "table" / "small_s1" / "summary.json")
-    (tmp_path / "scripts").symlink_to(root / "scripts")
+    from nbvs_drake.experiments import load_definition, resolve, write_table
+    exp = tmp_path / "results" / "experiments" / "motion_noise"
+    shutil.copytree(out, exp / "runs" / "teapot-DU_s1")
+    write_table(resolve(load_definition("motion_noise"), seeds=[1]), exp)
     (tmp_path / "notebooks").mkdir()
     monkeypatch.chdir(tmp_path / "notebooks")
-    monkeypatch.setattr(sys, "path", list(sys.path))  # the notebook extends it
+    monkeypatch.setattr(sys, "path", list(sys.path))  # (the notebook no longer extends it)
     nb = nbformat.read(root / "notebooks" / "coverage_analysis.ipynb", as_version=4)
     nbformat.validate(nb)
     ns: dict = {}
@@ -118,7 +102,8 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
             exec(compile(cell.source, "coverage_analysis.ipynb", "exec"), ns)
     assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"].records) == s["scans"]
     assert ns["runs"]["small"].summary == json.loads((out / "summary.json").read_text())  # RunResult.load
-    assert ns["agg"][0]["coverage_mean"] == pytest.approx(s["coverage"])
+    assert ns["table"].cell("teapot/DU")["metrics"]["coverage"]["mean"] == pytest.approx(100 * s["coverage"])
+    assert [len(v) for v in ns["exp_runs"].values()] == [1, 0, 0, 0, 0, 0]
 
 
 def test_same_seed_same_summary(small_run, tmp_path):

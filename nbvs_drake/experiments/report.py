@@ -1,0 +1,98 @@
+"""`nbvs experiment --list` and `nbvs experiment report`: docs/results.md from the
+experiments' table.md files, each stamped with the command, git commit and date that
+produced it (from its table.json)."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from .aggregate import TIMINGS_HEADING, load_table
+from .definition import definition_names, expand, load_definition, resolve
+
+
+def _fmt_s(s) -> str:
+    if s is None:
+        return "?"
+    s = float(s)
+    if s < 120:
+        return f"{s:.0f} s"
+    if s < 2 * 3600:
+        return f"{s / 60:.0f} min"
+    return f"{s / 3600:.1f} h"
+
+
+def listing() -> str:
+    """One paragraph per built-in experiment: its paper, table/figure, number of runs (full
+    and quick) and the measured cost per run."""
+    lines = []
+    for name in definition_names():
+        d = load_definition(name)
+        full, quick = len(expand(resolve(d))), len(expand(resolve(d, quick=True)))
+        cost = d.get("cost") or {}
+        q, f = cost.get("quick_run_s"), cost.get("full_run_s")
+        lines.append(f"{name:13s} {d.get('paper', '')}, {d.get('reference', '')}: {d.get('title', '')}")
+        lines.append(f"{'':13s} full: {full} runs, ~{_fmt_s(f)} per run (estimated from the quick runs and "
+                     f"timings on the same machine; cost.full_basis in the definition), ~{_fmt_s(f * full)} in all, "
+                     "one run per core" if f else f"{'':13s} full: {full} runs, cost per run not measured")
+        lines.append(f"{'':13s} quick: {quick} runs, {_fmt_s(q)} per run (measured)" if q else
+                     f"{'':13s} quick: {quick} runs")
+        if cost.get("machine"):
+            lines.append(f"{'':13s} measured on {cost['machine']}" + (f", {cost['measured']}" if cost.get("measured") else ""))
+    return "\n".join(lines)
+
+
+def _relink(md: str, src_dir: Path, dest: Path) -> str:
+    """Figure links of a table.md made relative to the report's folder."""
+    def sub(m):
+        target = m.group(2)
+        if re.match(r"^[a-z]+://", target) or target.startswith("/"):
+            return m.group(0)
+        rel = os.path.relpath(src_dir / target, dest.parent)
+        return f"![{m.group(1)}]({rel})"
+    return re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", sub, md)
+
+
+#: where a hand-written results file keeps the generated part (all the rest is left as is)
+BEGIN, END = "<!-- nbvs experiment report: begin -->", "<!-- nbvs experiment report: end -->"
+
+
+def write_report(out_root, dest) -> tuple[Path, list[str]]:
+    """Assembles dest (docs/results.md) from out_root/*/table.md, built-in experiments
+    first in their listing order (the full version, then the quick one), then any other.
+    A dest that holds the BEGIN and END markers keeps everything outside them (the "# Results"
+    heading is then left to the file); otherwise dest is written whole."""
+    out_root, dest = Path(out_root), Path(dest)
+    order = {n: i for i, n in enumerate(definition_names())}
+    found = [p.parent for p in out_root.glob("*/table.json")]
+
+    def key(d: Path):
+        base = d.name[:-len("_quick")] if d.name.endswith("_quick") else d.name
+        return (order.get(base, len(order)), base, d.name.endswith("_quick"))
+    found.sort(key=key)
+    parts = ["# Results", "",
+             f"Assembled by `nbvs experiment report --out {out_root} --to {dest}` from each experiment's "
+             "`table.md`. Each table says which command, at which git commit and on which date, produced it. "
+             "`nbvs experiment --list` lists the experiments and their cost.", ""]
+    names = []
+    for d in found:
+        t = load_table(d)
+        st = t.get("stamp") or {}
+        md = t.markdown.split("\nProvenance:", 1)[0].rstrip()
+        md = _relink(md, d, dest)
+        stamp = (f"*Produced by* `{st.get('command') or '?'}` *at commit* `{st.get('git_commit', '?')}` "
+                 f"*on* {st.get('date', '?')} ({st.get('executor', '?')}, {st.get('host', '?')}).")
+        first, _, rest = md.partition("\n")
+        parts += [first.replace("### ", "## ", 1), "", stamp, rest.replace(TIMINGS_HEADING, "#" + TIMINGS_HEADING), ""]
+        names.append(d.name)
+    text = "\n".join(parts).rstrip() + "\n"
+    old = dest.read_text() if dest.is_file() else ""
+    if BEGIN in old and END in old.split(BEGIN, 1)[1]:  # only the marked part is ours
+        head, rest = old.split(BEGIN, 1)
+        text = head + BEGIN + "\n" + text.split("\n", 1)[1].lstrip("\n") + END + rest.split(END, 1)[1]
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, dest)
+    return dest, names

@@ -1,0 +1,438 @@
+"""Runs an experiment's runs on an executor and keeps every finished one.
+
+Each run is written into a temporary sibling folder (`runs/<run>.partial-<token>/`) and
+renamed to `runs/<run>/` only once it is complete (the mission returned and summary.json is
+written), so a run's folder appears complete or not at all. A batch that is killed (SIGKILL,
+at any moment) and started again keeps and skips every finished run, removes the leftover
+temporary folders and redoes the unfinished runs from scratch. A run that fails (an
+exception, a worker that dies) is recorded in `runs/<run>.failed.json` (the error and its log)
+and does not stop the batch; `retry_failed` reruns those. Each run's stdout and stderr go to
+`logs/<run>.log`; the batch's own events (started, skipped, finished, failed, cleaned) to
+`runner.log`.
+
+Executors:
+- `local`: one spawned process per run (Drake and numba dislike fork), `jobs` at a time, each
+  with its share of the cores as numba threads (NUMBA_NUM_THREADS, numba.set_num_threads). A
+  process per run, not a long-lived pool: a run that aborts its process (a crash in native
+  code) fails alone.
+- `ray`: each run a Ray task, on the cluster at `address` or on a local `ray.init(num_cpus=jobs)`
+  started for the batch. The task runs in a temporary folder on its worker and returns the
+  run folder as a gzipped tarball with its log; the driver writes them, so workers need no
+  shared filesystem (but the package installed, and any `--object` mesh at the same path).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import io
+import json
+import os
+import shutil
+import socket
+import sys
+import tarfile
+import time
+import traceback
+from pathlib import Path
+
+from .definition import ExperimentError, RunSpec, expand, resolve
+
+PARTIAL = ".partial-"
+
+
+def cpu_count() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+# --------------------------------------------------------------------------------------
+# one run (in a worker)
+# --------------------------------------------------------------------------------------
+
+
+def reconstruct_run(scenario: str, out: Path, seed: int, overrides) -> dict:
+    """One `nbvs reconstruct` (nbvs_drake.reconstruct) into the fresh folder `out`; returns
+    its summary. `scenario`: a built-in scenario's name (`teapot_eu_mu`) or a YAML path."""
+    from ..api import reconstruct
+    return reconstruct(scenario=str(scenario), out=out, seed=seed, overrides=list(overrides), verbose=True).summary
+
+
+def execute_run(spec: dict, out: Path, threads: int) -> dict:
+    """The worker's side of one run: numba's share of threads, then the mission."""
+    os.environ["NUMBA_NUM_THREADS"] = str(threads)  # effective when numba is not yet imported
+    import numba
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    t0 = time.perf_counter()
+    summary = reconstruct_run(spec["scenario"], Path(out), spec["seed"], spec["overrides"])
+    if not (Path(out) / "summary.json").is_file():
+        raise RuntimeError(f"the run returned but wrote no summary.json in {out}")
+    return {"wall_s": time.perf_counter() - t0, "coverage": summary.get("coverage"),
+            "scans": summary.get("scans"), "host": socket.gethostname(), "numba_threads": threads}
+
+
+def _die_with_parent():
+    """Linux: the run process gets SIGKILL when the batch process dies, so a killed batch
+    leaves no orphan writing into a folder the next batch removes."""
+    try:
+        import ctypes
+        import signal
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        if os.getppid() == 1:
+            os._exit(1)
+    except Exception:  # noqa: BLE001 - best effort
+        pass
+
+
+def _redirect_output(log_path: Path):
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    return saved
+
+
+def _restore_output(saved):
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.dup2(saved[0], 1)
+    os.dup2(saved[1], 2)
+    os.close(saved[0])
+    os.close(saved[1])
+
+
+def _local_child(spec: dict, tmp: str, log: str, threads: int, info_path: str):
+    """Entry point of a spawned run process."""
+    _die_with_parent()
+    os.environ["NUMBA_NUM_THREADS"] = str(threads)
+    _redirect_output(Path(log))
+    try:
+        info = execute_run(spec, Path(tmp), threads)
+        Path(info_path).write_text(json.dumps(info))
+    except BaseException as e:  # noqa: BLE001 - recorded, then a non-zero exit
+        traceback.print_exc()
+        sys.stderr.flush()
+        Path(info_path).write_text(json.dumps({"error": f"{type(e).__name__}: {e}",
+                                               "traceback": traceback.format_exc()}))
+        os._exit(1)
+
+
+def _ray_body(spec: dict, threads: int) -> dict:
+    """A Ray task: the run in a temporary folder of the worker; returns the folder as a
+    gzipped tarball (bytes) and the log."""
+    import tempfile
+    with tempfile.TemporaryDirectory(prefix="nbvs_run_") as tmp:
+        out, log = Path(tmp) / "run", Path(tmp) / "run.log"
+        saved = _redirect_output(log)
+        info, error = {}, None
+        try:
+            info = execute_run(spec, out, threads)
+        except Exception as e:  # noqa: BLE001 - the driver records it
+            traceback.print_exc()
+            error = {"error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()}
+        finally:
+            _restore_output(saved)
+        buf = io.BytesIO()
+        if error is None:
+            with tarfile.open(fileobj=buf, mode="w:gz") as tf:
+                tf.add(out, arcname=".")
+        return {"info": info, "error": error, "tar": buf.getvalue(), "log": log.read_bytes() if log.exists() else b""}
+
+
+# --------------------------------------------------------------------------------------
+# executors
+# --------------------------------------------------------------------------------------
+
+
+class LocalExecutor:
+    name = "local"
+
+    def close(self):
+        pass
+
+    def __init__(self, jobs: int):
+        self.jobs = max(1, jobs)
+        self.threads = max(1, cpu_count() // self.jobs)
+
+    def describe(self) -> str:
+        return f"local, {self.jobs} processes x {self.threads} numba threads"
+
+    def run(self, batch, todo: list[RunSpec]):
+        import multiprocessing as mp
+        from multiprocessing.connection import wait
+        ctx = mp.get_context("spawn")
+        pending = list(todo)
+        active = {}
+        try:
+            while pending or active:
+                while pending and len(active) < self.jobs:
+                    spec = pending.pop(0)
+                    tmp = batch.new_partial(spec)
+                    info = tmp.with_name(tmp.name + ".info.json")
+                    p = ctx.Process(target=_local_child, name=f"nbvs-{spec.run_id}",
+                                    args=(spec.to_json(), str(tmp), str(batch.log_path(spec)), self.threads, str(info)))
+                    p.start()
+                    batch.event(f"start {spec.run_id} (pid {p.pid})")
+                    active[p.sentinel] = (p, spec, tmp, info)
+                for s in wait(list(active), timeout=5.0):
+                    p, spec, tmp, info_f = active.pop(s)
+                    p.join()
+                    info = json.loads(info_f.read_text()) if info_f.is_file() else {}
+                    info_f.unlink(missing_ok=True)
+                    if p.exitcode == 0 and "error" not in info and (tmp / "summary.json").is_file():
+                        batch.finished(spec, tmp, info)
+                    else:
+                        err = info.get("error") or f"the run process exited with code {p.exitcode}"
+                        batch.failed(spec, tmp, err, info.get("traceback"), p.exitcode)
+        finally:
+            for p, spec, tmp, _ in active.values():  # interrupted: stop the runs in flight
+                p.kill()
+                p.join()
+
+
+class RayExecutor:
+    name = "ray"
+
+    def __init__(self, jobs: int, address: str | None = None):
+        self.jobs = max(1, jobs)
+        self.address = address
+        self.threads = max(1, cpu_count() // self.jobs) if not address else 1
+        self._started = False
+
+    def describe(self) -> str:
+        where = f"cluster at {self.address}" if self.address else f"local Ray, num_cpus={self.jobs}"
+        return f"ray ({where}), {self.threads} numba threads per task"
+
+    def _init(self):
+        os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+        try:
+            import ray
+        except ImportError as e:
+            raise ExperimentError(f"--executor ray needs the ray package ({e}); pip install 'ray>=2.9'") from None
+        env = {"env_vars": {"NUMBA_NUM_THREADS": str(self.threads), "RAY_USAGE_STATS_ENABLED": "0"}}
+        if ray.is_initialized():
+            return ray
+        if self.address:
+            ray.init(address=self.address, runtime_env=env, log_to_driver=False)
+        else:
+            ray.init(num_cpus=self.jobs, include_dashboard=False, runtime_env=env, log_to_driver=False,
+                     object_store_memory=200 * 1024 ** 2)
+            self._started = True
+        return ray
+
+    def run(self, batch, todo: list[RunSpec]):
+        ray = self._init()
+        task = ray.remote(num_cpus=1, max_retries=0)(_ray_body)
+        futures = {}
+        try:
+            for spec in todo:
+                futures[task.remote(spec.to_json(), self.threads)] = spec
+                batch.event(f"submit {spec.run_id}")
+            while futures:
+                ready, _ = ray.wait(list(futures), num_returns=1, timeout=5.0)
+                for ref in ready:
+                    spec = futures.pop(ref)
+                    try:
+                        res = ray.get(ref)
+                    except Exception as e:  # noqa: BLE001 - a dead worker, a lost task
+                        batch.failed(spec, None, f"{type(e).__name__}: {' '.join(str(e).split())[:2000]}", None, None)
+                        continue
+                    batch.log_path(spec).write_bytes(res.get("log") or b"")
+                    if res.get("error"):
+                        batch.failed(spec, None, res["error"]["error"], res["error"].get("traceback"), None)
+                        continue
+                    tmp = batch.new_partial(spec)
+                    tmp.mkdir(parents=True)
+                    with tarfile.open(fileobj=io.BytesIO(res["tar"]), mode="r:gz") as tf:
+                        tf.extractall(tmp, filter="data")
+                    batch.finished(spec, tmp, res.get("info") or {})
+        finally:
+            for ref in list(futures):  # interrupted: cancel what is left
+                try:
+                    ray.cancel(ref, force=True)
+                except Exception:  # noqa: BLE001
+                    pass
+
+    def close(self):
+        if self._started:
+            import ray
+            ray.shutdown()
+            self._started = False
+
+
+def make_executor(name: str, jobs: int | None, address: str | None = None):
+    jobs = jobs or cpu_count()
+    if name == "local":
+        return LocalExecutor(jobs)
+    if name == "ray":
+        return RayExecutor(jobs, address)
+    raise ExperimentError(f"unknown executor {name!r} (local or ray)")
+
+
+# --------------------------------------------------------------------------------------
+# the batch
+# --------------------------------------------------------------------------------------
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
+
+
+class Batch:
+    """One experiment's folder: the lock, the runs' folders, the events, the progress."""
+
+    def __init__(self, r: dict, exp_dir: Path, executor, progress: bool = True):
+        self.r, self.dir, self.executor = r, Path(exp_dir), executor
+        self.runs_dir = self.dir / "runs"
+        self.logs_dir = self.dir / "logs"
+        self.runs_dir.mkdir(parents=True, exist_ok=True)
+        self.logs_dir.mkdir(exist_ok=True)
+        self._n = 0
+        self.done = self.fail = 0
+        self.bar = None
+        self.progress = progress
+
+    # ---- the lock: one batch per experiment folder (released by the kernel on any death)
+    def lock(self):
+        import fcntl
+        self._lock = open(self.dir / ".lock", "w")
+        try:
+            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            raise ExperimentError(f"another `nbvs experiment` batch is running in {self.dir}") from None
+
+    def event(self, msg: str):
+        with open(self.dir / "runner.log", "a") as f:
+            f.write(f"{_now()} {msg}\n")
+
+    def log_path(self, spec: RunSpec) -> Path:
+        return self.logs_dir / f"{spec.run_id}.log"
+
+    def final(self, spec: RunSpec) -> Path:
+        return self.runs_dir / spec.run_id
+
+    def failed_path(self, spec: RunSpec) -> Path:
+        return self.runs_dir / f"{spec.run_id}.failed.json"
+
+    def new_partial(self, spec: RunSpec) -> Path:
+        self._n += 1
+        return self.runs_dir / f"{spec.run_id}{PARTIAL}{os.getpid()}-{self._n}"
+
+    def clean_partials(self):
+        for p in sorted(self.runs_dir.glob(f"*{PARTIAL}*")):
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+            self.event(f"cleaned {p.name} (left by an unfinished batch)")
+
+    # ---- outcomes
+    def finished(self, spec: RunSpec, tmp: Path, info: dict):
+        (tmp / "run.json").write_text(json.dumps(dict(spec.to_json(), **info, executor=self.executor.name,
+                                                      finished=_now()), indent=1))
+        final = self.final(spec)
+        if final.exists():  # not a finished run (those are skipped): a stray folder
+            shutil.rmtree(final)
+        os.rename(tmp, final)
+        self.failed_path(spec).unlink(missing_ok=True)
+        s = json.loads((final / "summary.json").read_text())
+        self.done += 1
+        line = (f"{spec.run_id}: coverage {s.get('coverage', 0):.3f} after {s.get('scans')} scans, "
+                f"{s.get('stop_reason')}, {info.get('wall_s', s.get('wall_s', 0)):.1f} s")
+        self.event(f"done {line}")
+        self._say(line)
+
+    def failed(self, spec: RunSpec, tmp: Path | None, error: str, tb: str | None, exitcode):
+        if tmp is not None and tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+        rec = {"run_id": spec.run_id, "spec": spec.to_json(), "error": error, "traceback": tb,
+               "exitcode": exitcode, "log": str(self.log_path(spec)), "executor": self.executor.name, "date": _now()}
+        tmp_f = self.failed_path(spec).with_suffix(".tmp")
+        tmp_f.write_text(json.dumps(rec, indent=1))
+        os.replace(tmp_f, self.failed_path(spec))
+        self.fail += 1
+        self.event(f"FAILED {spec.run_id}: {error}")
+        self._say(f"{spec.run_id}: FAILED ({error}; log {self.log_path(spec)})")
+
+    def _say(self, line: str):
+        if self.bar is not None:
+            self.bar.update(1)
+            self.bar.set_postfix(failed=self.fail)
+            self.bar.write(line, file=sys.stdout)
+        else:
+            print(line, flush=True)
+
+
+def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, jobs: int | None = None,
+                   executor="local", address: str | None = None, retry_failed: bool = False,
+                   command: str = "", progress: bool = True) -> dict:
+    """Runs what is missing of one experiment into out_root/<name>[_quick]/ and writes its
+    table. `executor`: "local", "ray" or an executor from `make_executor` (left open, for
+    several experiments on one Ray session). Returns {"table", "dir", "ran", "skipped",
+    "failed" (the run ids that failed, now or before)}."""
+    if isinstance(executor, str):
+        ex = make_executor(executor, jobs, address)
+        try:
+            return run_experiment(defn, out_root, quick=quick, seeds=seeds, executor=ex, retry_failed=retry_failed,
+                                  command=command, progress=progress)
+        finally:
+            ex.close()
+    from .aggregate import write_table
+    r = resolve(defn, quick=quick, seeds=seeds)
+    exp_dir = Path(out_root) / (r["name"] + ("_quick" if quick else ""))
+    ex = executor
+    batch = Batch(r, exp_dir, ex, progress)
+    batch.lock()
+    batch.clean_partials()
+    specs = expand(r)
+    todo, skipped, failed_before = [], [], []
+    for spec in specs:
+        final = batch.final(spec)
+        if (final / "summary.json").is_file():
+            rj = final / "run.json"
+            if rj.is_file():
+                have = json.loads(rj.read_text())
+                have_key = {"scenario": have.get("scenario"), "seed": have.get("seed"),
+                            "overrides": have.get("overrides")}
+                if have_key != spec.key():
+                    raise ExperimentError(
+                        f"{final} was run with other settings ({have_key}) than this definition asks "
+                        f"({spec.key()}); remove it or use another --out")
+            skipped.append(spec)
+            batch.event(f"skipped {spec.run_id} (finished)")
+        elif batch.failed_path(spec).is_file() and not retry_failed:
+            failed_before.append(spec)
+            batch.event(f"skipped {spec.run_id} (failed before; --retry-failed reruns it)")
+        else:
+            todo.append(spec)
+    import yaml
+    (exp_dir / "definition.yaml").write_text(yaml.safe_dump({k: v for k, v in r.items() if not k.startswith("_")},
+                                                            sort_keys=False, allow_unicode=True))
+    head = (f"{r['name']}{' (quick)' if quick else ''}: {len(specs)} runs, {len(skipped)} finished before, "
+            f"{len(failed_before)} failed before, {len(todo)} to run on {ex.describe()} -> {exp_dir}")
+    batch.event(f"batch: {head}; command: {command}")
+    print(head, flush=True)
+    if todo:
+        if progress:
+            from tqdm import tqdm
+            batch.bar = tqdm(total=len(specs), initial=len(skipped) + len(failed_before), unit="run",
+                             desc=r["name"], file=sys.stderr, dynamic_ncols=True, smoothing=0)
+            batch.bar.set_postfix(failed=len(failed_before))
+        try:
+            ex.run(batch, todo)
+        finally:
+            if batch.bar is not None:
+                batch.bar.close()
+    stamp = {"command": command, "executor": ex.describe(), "host": socket.gethostname()}
+    table = write_table(r, exp_dir, stamp)
+    batch.event(f"table: {table['runs_finished']} of {table['runs_expected']} runs -> {exp_dir / 'table.md'}")
+    failed_now = [s.run_id for s in specs if batch.failed_path(s).is_file()]
+    print(f"{r['name']}: {table['runs_finished']} of {table['runs_expected']} runs finished "
+          f"({batch.done} now, {len(skipped)} skipped), {len(failed_now)} failed -> {exp_dir / 'table.md'}",
+          flush=True)
+    return {"table": table, "dir": exp_dir, "ran": batch.done, "skipped": len(skipped), "failed": failed_now}

@@ -1,0 +1,277 @@
+"""`nbvs experiment`: definitions as data, the table from the finished runs, the local and the
+Ray executors giving the same table, a killed batch keeping its finished runs, failed runs
+recorded and retried, the report."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from nbvs_drake.cli import main
+from nbvs_drake.experiments import (comparable, compared_markdown, definition_names, expand, load_definition,
+                                    load_table, resolve, with_objects, write_report, write_table)
+
+NAMES = ["hrt", "objects", "ig_vs_du", "samples", "motion_noise", "clutter", "ort_size", "ort_vs_rs", "metrics",
+         "prediction"]
+
+#: a definition small enough to run in seconds: the default scene, 2 scans, few candidates
+TINY = """\
+name: tiny
+title: two short default runs
+scenario: default
+set: [mission.max_scans=2, planner.n_candidates=600, planner.ray_stride=4, scene.gt_points=3000]
+factors:
+  - name: h
+    levels:
+      - {label: "0.3", set: [planner.overlap_h=0.3]}
+seeds: [1, 2]
+series:
+  - {name: coverage, field: coverage, scale: 100}
+metrics:
+  - {name: coverage, key: coverage, scale: 100, unit: "%"}
+"""
+
+
+def _cli(*args, timeout=900):
+    return subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "experiment", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_every_experiment_is_listed_with_paper_runs_and_cost(capsys):
+    assert main(["experiment", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert set(NAMES) <= set(definition_names())
+    for name in NAMES:
+        assert f"\n{name} " in "\n" + out, name
+    assert out.count("full:") >= len(NAMES) and out.count("quick:") >= len(NAMES)
+    assert "Santos et al. (2020)" in out and "Object Reconstruction Tree" in out and "Table 5" in out
+    assert "measured on" in out
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_definition_expands_to_its_runs(name):
+    """Every built-in definition loads, its quick version is smaller, the published values
+    name existing factors and levels, and each run's overrides are valid scenario settings."""
+    from nbvs_drake.config import load_scenario
+    d = load_definition(name)
+    full, quick = expand(resolve(d)), expand(resolve(d, quick=True))
+    assert 0 < len(quick) < len(full) or (len(quick) == len(full) == 1)
+    assert len(quick) <= 12
+    assert len({r.run_id for r in full}) == len(full)
+    factors = {f["name"]: {str(lv["label"]) for lv in f["levels"]} for f in d.get("factors") or []}
+    for pc in (d.get("published") or {}).get("cells") or []:
+        assert set(pc["levels"]) <= set(factors), pc
+    assert d.get("paper") and d.get("reference")
+    assert (d.get("cost") or {}).get("quick_run_s"), "measured cost per quick run"
+    for r in {(x.scenario, tuple(x.overrides)): x for x in full + quick}.values():  # validated like `--set`
+        load_scenario(r.scenario, seed=r.seed, settings=r.overrides)
+
+
+def test_full_sizes_follow_the_papers():
+    size = {n: len(expand(resolve(load_definition(n)))) for n in NAMES}
+    assert size["motion_noise"] == 2 * 3 * 10  # Table 5: two objects here, three approaches, ten runs
+    assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
+    assert size["clutter"] == 2 * 5  # Table 6: five repetitions
+    assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 5 * 10 and size["ort_size"] == 5 * 10
+    assert size["hrt"] % 4 == 0  # a = 0..3
+
+
+def test_object_option_adds_a_mesh_level(tmp_path):
+    mesh = tmp_path / "box.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    d = with_objects(load_definition("objects"), [f"box={mesh}"])
+    runs = [r for r in expand(resolve(d, quick=True)) if r.levels["object"] == "box"]
+    assert runs and any(str(mesh) in o for o in runs[0].overrides)
+    with pytest.raises(Exception, match="no object factor"):
+        with_objects(load_definition("ort_vs_rs"), [f"box={mesh}"])
+
+
+def _fake_run(d: Path, seed, coverage, unknown, un_o=None, collisions=0, trajectories=None):
+    """A finished run folder with the files the table reads."""
+    d.mkdir(parents=True)
+    n = len(coverage)
+    recs = []
+    for k in range(n):
+        plan = {"status": "ok", "factors": {"un_o": (un_o or [0] * n)[k], "rho": 1.0 + k}, "plan_s": 1.0} \
+            if k < n - 1 else {"status": "stop"}
+        recs.append({"iteration": k + 1, "coverage": coverage[k], "remaining_unknown_m3": unknown[k], "plan": plan})
+    (d / "iterations.jsonl").write_text("".join(json.dumps(r) + "\n" for r in recs))
+    ex = trajectories if trajectories is not None else n - 1
+    (d / "summary.json").write_text(json.dumps({
+        "seed": seed, "coverage": coverage[-1], "coverage_by_scan": coverage, "scans": n, "collisions": collisions,
+        "executed_trajectories": ex, "collision_rate": collisions / ex if ex else 0, "distance": 2.0 * n,
+        "stop_reason": "collision" if collisions else "max_scans", "times_s": {"plan": 1.0 * (n - 1)}, "wall_s": 9.0}))
+    (d / "scenario.yaml").write_text("mapper:\n  voxel_size: 0.02\n")
+
+
+def test_table_from_finished_runs_marks_the_missing_and_keeps_timings_apart(tmp_path):
+    """Per cell: metrics over the seeds, a ratio pooled over the runs, the coverage per scan
+    with a run that stopped early counting with its last coverage (as mission_table did), a
+    missing and a failed run marked; the prediction pairs (un_o x voxel volume against the
+    drop of the unknown volume, the first plan left out) and their R²; wall-clock times only
+    in the timings section."""
+    y = tmp_path / "d.yaml"
+    y.write_text(TINY.replace("seeds: [1, 2]", "seeds: [1, 2, 3, 4]") + """\
+  - {name: collision_rate, ratio: [collisions, executed_trajectories], scale: 100}
+  - {name: collided, key: collided, stats: [nonzero]}
+timings:
+  - {name: plan_time, key: plan_s_per_iteration, unit: s}
+analysis: {kind: prediction, skip_first: 1}
+published:
+  cells:
+    - {levels: {h: "0.3"}, coverage: 90.0}
+figures:
+  - {file: cov.png, kind: series, series: coverage}
+  - {file: pred.png, kind: scatter}
+""")
+    r = resolve(load_definition(y))
+    runs = tmp_path / "e" / "runs"
+    v = 0.02 ** 3
+    _fake_run(runs / "0.3_s1", 1, [0.3, 0.5, 0.7], [0.30, 0.20, 0.15], un_o=[100, 0.06 / v, 0])
+    _fake_run(runs / "0.3_s2", 2, [0.3, 0.4], [0.30, 0.25], collisions=1, trajectories=2)  # stopped early
+    (runs / "0.3_s4.failed.json").write_text("{}")
+    t = write_table(r, tmp_path / "e", {"command": "test"})
+    c = t["cells"][0]
+    assert c["finished"] == 2 and c["expected"] == 4 and c["missing_seeds"] == [3, 4] and c["failed_seeds"] == [4]
+    assert c["metrics"]["coverage"]["mean"] == pytest.approx(55.0)
+    assert c["metrics"]["coverage"]["values"] == {"1": pytest.approx(70.0), "2": pytest.approx(40.0)}
+    assert c["metrics"]["collision_rate"]["pooled"] == pytest.approx(100 * 1 / 4)
+    assert c["metrics"]["collided"]["nonzero"] == 1
+    assert c["series"]["coverage"]["mean"] == pytest.approx([30.0, 45.0, 55.0])  # seed 2 carried at 40
+    # only seed 1's second plan is a pair: predicted 0.06 m³, revealed 0.20 - 0.15
+    assert c["prediction"]["pairs"] == [[pytest.approx(0.06), pytest.approx(0.05)]]
+    assert t["timings"]["cells"][0]["metrics"]["plan_time"]["mean"] == pytest.approx(1.0)
+    assert "timings" not in comparable(t) and "stamp" not in comparable(t)
+    md = (tmp_path / "e" / "table.md").read_text()
+    assert "| 0.3 | 2/4 | 55 ± 21.213 | 90 |" in md
+    assert "Missing runs" in md and "0.3 seed 4 (failed)" in md
+    assert "plan time" not in compared_markdown(md) and "plan_time" not in compared_markdown(md)
+    assert (tmp_path / "e" / "cov.png").stat().st_size > 5000 and (tmp_path / "e" / "pred.png").is_file()
+    lt = load_table(tmp_path / "e")
+    assert lt.cell("0.3")["finished"] == 2 and lt.markdown == md and len(lt.runs()["0.3"]) == 2
+
+
+def _snapshot(runs: Path) -> dict:
+    """Finished run folders (not the temporary ones): summary.json's inode and mtime."""
+    return {p.parent.name: (p.stat().st_ino, p.stat().st_mtime_ns) for p in runs.glob("*/summary.json")
+            if ".partial-" not in p.parent.name}
+
+
+def test_local_and_ray_executors_give_the_same_tables(tmp_path):
+    """The quick versions of motion_noise and ort_vs_rs, once in local processes and once as
+    tasks on a local Ray cluster: identical tables (the compared part: all but wall-clock
+    times and provenance), figures, every run's folder; then the report."""
+    pytest.importorskip("ray")
+    t0 = time.perf_counter()
+    local = _cli("motion_noise", "ort_vs_rs", "--quick", "--jobs", "2", "--out", str(tmp_path / "local"))
+    t_local = time.perf_counter() - t0
+    assert local.returncode == 0, local.stdout + local.stderr
+    t0 = time.perf_counter()
+    ray = _cli("motion_noise", "ort_vs_rs", "--quick", "--jobs", "2", "--executor", "ray", "--out",
+               str(tmp_path / "ray"))
+    t_ray = time.perf_counter() - t0
+    assert ray.returncode == 0, ray.stdout + ray.stderr
+    print(f"local {t_local:.0f} s, ray {t_ray:.0f} s")
+    for name, n_runs in (("motion_noise_quick", 6), ("ort_vs_rs_quick", 4)):
+        a, b = load_table(tmp_path / "local" / name), load_table(tmp_path / "ray" / name)
+        assert a["runs_finished"] == b["runs_finished"] == a["runs_expected"] == n_runs
+        assert comparable(a) == comparable(b)
+        assert compared_markdown(a.markdown) == compared_markdown(b.markdown)
+        assert a["stamp"]["executor"].startswith("local") and b["stamp"]["executor"].startswith("ray")
+        assert a["stamp"]["command"].startswith("nbvs experiment motion_noise ort_vs_rs --quick")
+        assert a["stamp"]["git_commit"] and a["stamp"]["date"]
+        for f in a["figures"]:
+            assert (tmp_path / "ray" / name / f).stat().st_size > 5000
+        for rid in a.cells[0]["runs"]:
+            for f in ("summary.json", "iterations.jsonl", "model.ply", "map.npz", "scenario.yaml", "replay.html",
+                      "run.json"):
+                assert (tmp_path / "ray" / name / "runs" / rid / f).is_file(), (rid, f)
+            assert (tmp_path / "ray" / name / "logs" / f"{rid}.log").read_text().count("scan ") >= 1
+        assert "coverage" in local.stdout and "run" in local.stderr  # per-run lines, the progress bar
+    mn = load_table(tmp_path / "local" / "motion_noise_quick")
+    assert {c["label"] for c in mn.cells} == {"teapot/DU", "teapot/DU-MU", "teapot/EU-MU"}
+    assert all(c["metrics"]["coverage"]["mean"] > 20 for c in mn.cells)
+    dest = tmp_path / "docs" / "results.md"
+    assert main(["experiment", "report", "--out", str(tmp_path / "local"), "--to", str(dest)]) == 0
+    text = dest.read_text()
+    assert text.index("## motion_noise") < text.index("## ort_vs_rs")
+    assert "Produced by* `nbvs experiment motion_noise ort_vs_rs --quick" in text and "at commit" in text
+    assert "](../local/motion_noise_quick/coverage_per_scan.png)" in text
+
+
+def test_a_killed_batch_keeps_its_finished_runs_and_redoes_only_the_unfinished(tmp_path):
+    """SIGKILL of the batch's whole process group while its second run is under way (the first
+    finished): the rerun skips the finished run (same summary.json inode and mtime, 'skipped'
+    in runner.log), removes the half-written folder, redoes the second run and completes the
+    table."""
+    y = tmp_path / "tiny.yaml"
+    y.write_text(TINY)
+    out = tmp_path / "x"
+    runs = out / "tiny" / "runs"
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
+                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)
+    deadline = time.time() + 300
+    try:
+        while time.time() < deadline:
+            partial = list(runs.glob("*.partial-*")) if runs.exists() else []
+            if _snapshot(runs) and partial and list(partial[0].glob("iterations.jsonl")):
+                break
+            assert proc.poll() is None, "the batch ended before it could be killed"
+            time.sleep(0.2)
+        else:
+            raise AssertionError("no finished run and a second one under way within 300 s")
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    before = _snapshot(runs)
+    assert list(before) == ["0.3_s1"]
+    assert list(runs.glob("*.partial-*"))  # the second run was killed half-way
+    assert not (out / "tiny" / "table.md").exists()
+    again = _cli(str(y), "--jobs", "1", "--out", str(out))
+    assert again.returncode == 0, again.stdout + again.stderr
+    after = _snapshot(runs)
+    assert after["0.3_s1"] == before["0.3_s1"]  # not redone
+    assert set(after) == {"0.3_s1", "0.3_s2"} and not list(runs.glob("*.partial-*"))
+    log = (out / "tiny" / "runner.log").read_text()
+    assert "skipped 0.3_s1 (finished)" in log and "cleaned 0.3_s2.partial-" in log
+    assert log.count("start 0.3_s1") == 1 and log.count("start 0.3_s2") == 2
+    t = load_table(out / "tiny")
+    assert t["runs_finished"] == t["runs_expected"] == 2 and not t.cells[0]["missing_seeds"]
+    assert "1 now, 1 skipped" in again.stdout
+
+
+def test_a_failed_run_is_recorded_does_not_stop_the_batch_and_is_retried(tmp_path):
+    y = tmp_path / "f.yaml"
+    y.write_text(TINY.replace('      - {label: "0.3", set: [planner.overlap_h=0.3]}',
+                              '      - {label: bad, set: [planner.overlap_h=7]}').replace("[1, 2]", "[1]"))
+    out = tmp_path / "o"
+    first = _cli(str(y), "--jobs", "1", "--out", str(out))
+    assert first.returncode == 1 and "FAILED" in first.stdout and "retry-failed" in first.stderr
+    rec = json.loads((out / "tiny" / "runs" / "bad_s1.failed.json").read_text())
+    assert "overlap_h" in rec["error"] and Path(rec["log"]).read_text().count("ScenarioError") >= 1
+    t = load_table(out / "tiny")
+    assert t["runs_finished"] == 0 and t.cells[0]["failed_seeds"] == [1]
+    second = _cli(str(y), "--jobs", "1", "--out", str(out))  # not retried without the flag
+    assert "skipped bad_s1 (failed before" in (out / "tiny" / "runner.log").read_text()
+    assert second.returncode == 1 and "0 to run" in second.stdout
+    third = _cli(str(y), "--jobs", "1", "--out", str(out), "--retry-failed")
+    assert third.returncode == 1 and "1 to run" in third.stdout
+    assert (out / "tiny" / "runner.log").read_text().count("FAILED bad_s1") == 2
+
+
+def test_definitions_ship_as_package_data():
+    """pyproject.toml's package-data takes every definition file into a wheel."""
+    import fnmatch
+    import tomllib
+    from nbvs_drake.experiments import DEFINITIONS_DIR
+    root = Path(__file__).resolve().parents[1]
+    globs = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"][
+        "nbvs_drake.experiments"]
+    files = [p.relative_to(DEFINITIONS_DIR.parent).as_posix() for p in DEFINITIONS_DIR.glob("*")]
+    assert files and all(any(fnmatch.fnmatch(f, g) for g in globs) for f in files)

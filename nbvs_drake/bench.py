@@ -90,11 +90,11 @@ def bench_visibility(n_views: int = 400, trials: int = 20, per_trial: int = 200,
         "scan_points": int(len(scan.points)),
         "scan_no_return_rays": int(len(scan.free_rays)),
     }
-    out.update(_octomap_peer(scan, res, omap, dirs, X[0]))
+    out.update(_octomap_peer(scan, res, dirs, X[0]))
     return out
 
 
-def _octomap_peer(scan, res, omap, dirs, X_view) -> dict:
+def _octomap_peer(scan, res, dirs, X_view) -> dict:
     try:
         import pyoctomap
     except ImportError:

@@ -41,7 +41,7 @@ def _write_json(path: Path, obj):
 def pose_errors(records: list[dict]) -> dict:
     """Mean planar position (m) and heading (rad) error at the scans after the first, of the
     dead-reckoned belief and of the registration-corrected belief against the true state."""
-    from .registration import state_error
+    from .pose import state_error
     rows = [r for r in records[1:] if r.get("believed_state") and r.get("corrected_state")]
     if not rows:
         return {"scans": 0}
@@ -172,7 +172,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     }
     _write_json(out / "summary.json", summary)
     # paths.png and replay.html after summary.json: a failure there cannot lose the results
-    from .replay import write_visual_outputs
+    from .visual_outputs import write_visual_outputs
     vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
                                verbose=verbose, collision=collision)
     summary["times_s"]["visual_outputs"] = vis["seconds"]

@@ -133,7 +133,7 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
 # --------------------------------------------------------------------------------------
 
 
-def _base_phases(q0, q1, rc: RobotConfig):
+def _base_phases(q0, q1):
     """Turn-drive-turn for the in-place turning base, as (d_theta1, d_drive, d_theta2),
     choosing forward or backward driving by the smaller total rotation."""
     dx, dy = q1[0] - q0[0], q1[1] - q0[1]
@@ -192,7 +192,7 @@ def steer_together(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarra
     the driving direction of the smaller total rotation."""
     q0 = np.asarray(q0, float)
     q1 = np.asarray(q1, float)
-    return _together(_base_controls(_base_phases(q0, q1, rc)[0], rc), q1[3:] - q0[3:], rc)
+    return _together(_base_controls(_base_phases(q0, q1)[0], rc), q1[3:] - q0[3:], rc)
 
 
 def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np.ndarray]]:
@@ -204,7 +204,7 @@ def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np
     q1 = np.asarray(q1, float)
     dq = q1[3:] - q0[3:]
     out = []
-    for ph in _base_phases(q0, q1, rc):
+    for ph in _base_phases(q0, q1):
         base = _base_controls(ph, rc)
         out.append(("together", _together(base, dq, rc)))
         out.append(("arm_first", np.concatenate([_arm_controls(dq, rc), base])))

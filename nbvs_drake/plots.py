@@ -79,7 +79,7 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
 
     # the rest of the known environment (cluttered_room's chairs), as footprints
     from .config import Scenario
-    from .registration import rot_z
+    from .pose import rot_z
     from .scene import environment_boxes
     obstacles = []
     for b in environment_boxes(Scenario(scene=scene_cfg)):
@@ -189,12 +189,3 @@ def draw_coverage_by_scenario(ax, series: dict[str, list[list[float]]], title: s
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
     ax.set_title(title)
-
-
-def plot_coverage_by_scenario(series: dict[str, list[list[float]]], path: Path, title: str = ""):
-    """`draw_coverage_by_scenario` into the PNG `path`."""
-    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
-    draw_coverage_by_scenario(ax, series, title)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

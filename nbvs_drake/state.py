@@ -7,4 +7,3 @@ and the arm joints' velocities, each held for the control period (Vasquez-Gomez 
 
 NQ = 8  #: state size [x, y, theta, q1..q5]
 NU = 7  #: control size [v, w_b, w_1..w_5]
-NBASE = 3  #: the base's planar pose (x, y, theta) leads the state

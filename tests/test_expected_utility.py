@@ -124,7 +124,7 @@ def test_uncertain_start_spreads_the_rollouts():
     plan): with exact controls the rollouts' final headings spread by that sigma, and a view
     that needs the heading within 0.1 rad is worth about a quarter of its nominal value; with
     no start covariance (or a zero one) the rollouts all end at the nominal state."""
-    from nbvs_drake.registration import Correction, apply_corrections
+    from nbvs_drake.pose import Correction, apply_corrections
     q0 = np.array([1.0, 2.0, 0.3, 0, 0.3, 0, 0, 0])
     xi = np.array([[0.1, -0.2, 0.4], [0.0, 0.0, 0.0]])
     starts = apply_corrections(q0, xi)

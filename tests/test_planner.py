@@ -128,14 +128,14 @@ def _planner_system_after(sc, planner, omap, belief: Belief):
 
 
 def _belief(q0, correction=(0.0, 0.0, 0.0), covariance=None):
-    from nbvs_drake.registration import Correction
+    from nbvs_drake.pose import Correction
     q0 = np.asarray(q0, float)
     cov = np.zeros((3, 3)) if covariance is None else np.asarray(covariance, float)
     return Belief(1, q0, Correction(*correction).apply_state(q0), cov)
 
 
 def test_planner_plans_from_the_belief_and_applies_the_stop_criteria(planner, first_scan_map):
-    from nbvs_drake.registration import Correction
+    from nbvs_drake.pose import Correction
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
     q0 = np.array(sc.robot.start)

@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from nbvs_drake import replay
+from nbvs_drake import meshcat_draw, replay, screenshot
 from nbvs_drake.mission import run_mission
 
 from conftest import small_scenario
@@ -89,8 +89,8 @@ def test_map_voxel_centres_surface_only(live_run):
     from nbvs_drake.mapping.occupancy import OccupancyMap
     out, _, _ = live_run
     omap = OccupancyMap.load_npz(out / "map.npz")
-    unk_all, occ = replay.map_voxel_centres(omap, surface_only=False)
-    unk, occ2 = replay.map_voxel_centres(omap)
+    unk_all, occ = meshcat_draw.map_voxel_centres(omap, surface_only=False)
+    unk, occ2 = meshcat_draw.map_voxel_centres(omap)
     assert 0 < len(unk) < len(unk_all) and len(occ) == len(occ2) > 0
     assert len(unk_all) == int(np.count_nonzero(omap.unknown_mask() & omap.in_wbox()))
     # centres lie in W_box and on the voxel lattice
@@ -99,18 +99,18 @@ def test_map_voxel_centres_surface_only(live_run):
     assert np.allclose(k, np.round(k), atol=1e-6)
 
 
-@pytest.mark.skipif(replay.find_chromium() is None, reason="no chromium (Debian: apt-get install chromium)")
+@pytest.mark.skipif(screenshot.find_chromium() is None, reason="no chromium (Debian: apt-get install chromium)")
 def test_replay_renders_in_headless_chromium(live_run, tmp_path):
     """The page renders offline in headless Chromium (software WebGL): the screenshot 2 s into
     the recording (map of scan 1 and its plan) shows the yellow unknown and blue occupied
     voxels among the scene's colours; the one at the end (robot moved, last map) differs."""
     from PIL import Image
     out, _, _ = live_run
-    png = replay.screenshot_html(out / "replay.html", tmp_path / "replay_2s.png", at_s=2.0)
-    c = replay.image_colours(png)
+    png = screenshot.screenshot_html(out / "replay.html", tmp_path / "replay_2s.png", at_s=2.0)
+    c = screenshot.image_colours(png)
     assert c["yellow"] > 0.002 and c["blue"] > 0.0002 and c["distinct_colours"] > 40, c
-    png_end = replay.screenshot_html(out / "replay.html", tmp_path / "replay_end.png", at_s="end")
-    end = replay.image_colours(png_end)
+    png_end = screenshot.screenshot_html(out / "replay.html", tmp_path / "replay_end.png", at_s="end")
+    end = screenshot.image_colours(png_end)
     assert end["yellow"] > 0.002 and end["blue"] > 0.0002, end
     a, b = (np.asarray(Image.open(p).convert("RGB")).astype(int) for p in (png, png_end))
     changed = np.mean(np.abs(a - b).sum(axis=-1) > 60)

@@ -33,7 +33,6 @@ class CollisionModel:
         self.checker = SceneGraphCollisionChecker(
             model=self.diagram, robot_model_instances=[robot], edge_step_size=0.02,
             env_collision_padding=padding, self_collision_padding=0.0)
-        self.n_checks = 0
 
     def free(self, q: np.ndarray, parallelize: bool = True) -> np.ndarray:
         """Boolean (N,) collision-free flags for states (N, 8)."""
@@ -41,7 +40,6 @@ class CollisionModel:
         if len(q) == 0:
             return np.zeros(0, bool)
         pos = self.kin.to_positions(q)
-        self.n_checks += len(q)
         if len(q) == 1:
             return np.array([self.checker.CheckConfigCollisionFree(pos[0])])
         # thread dispatch costs more than it saves on small batches

@@ -28,7 +28,7 @@ import numpy as np
 
 from ..config import NoiseConfig
 from ..motion import control_sigmas, rollout, sample_control_noise, sample_truncated_normal, truncated_normal_logpdf
-from ..registration import EXACT_POSE_VAR, apply_corrections
+from ..pose import EXACT_POSE_VAR, apply_corrections
 
 
 def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> int:
@@ -77,7 +77,6 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     if not 0.0 <= max_collision_rate < 1.0:
         raise ValueError(f"max_collision_rate must be in [0, 1), got {max_collision_rate}")
     controls = np.asarray(controls, float)
-    m = len(controls)
     sigma = control_sigmas(noise, controls)  # (m, NU): 0 where the command is exact
     eps = sample_control_noise(rng, noise, controls, k)
     z = None

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from .. import replay
+from .. import meshcat_draw
 from ..mapping.occupancy import OccupancyMap
 from .messages import PlanReport
 
@@ -15,7 +15,7 @@ class MeshcatMapView(LeafSystem):
     when a new scan has been integrated, the map's unknown voxels of W_box (yellow, those on
     the surface of the unknown region) and occupied voxels (blue) replace the previous ones
     at /nbvs/map; when a new plan report arrives, its candidate views, chosen view and
-    planned path replace the previous ones at /nbvs/plan (drawing helpers of `replay`).
+    planned path replace the previous ones at /nbvs/plan (drawing helpers of `meshcat_draw`).
 
     Input ports:
       - map (abstract OccupancyMap)
@@ -36,20 +36,20 @@ class MeshcatMapView(LeafSystem):
         self.DeclarePeriodicPublishEvent(period, 0.0, self._publish)
         self._drawn_scan = -1
         self._drawn_plan = -1
-        replay.set_default_view(meshcat)
-        replay.set_wbox(meshcat, f"{replay.ROOT}/wbox", dummy_map.wbox_min, dummy_map.wbox_max)
+        meshcat_draw.set_default_view(meshcat)
+        meshcat_draw.set_wbox(meshcat, f"{meshcat_draw.ROOT}/wbox", dummy_map.wbox_min, dummy_map.wbox_max)
 
     def _publish(self, context):
         omap: OccupancyMap = self._map.Eval(context)
         if omap.scan_count != self._drawn_scan:
-            replay.set_map_objects(self.meshcat, f"{replay.ROOT}/map", omap)
+            meshcat_draw.set_map_objects(self.meshcat, f"{meshcat_draw.ROOT}/map", omap)
             self._drawn_scan = omap.scan_count
         report: PlanReport = self._plan.Eval(context)
         k = report.scan
         if k != self._drawn_plan:
-            self.meshcat.Delete(f"{replay.ROOT}/plan")
+            self.meshcat.Delete(f"{meshcat_draw.ROOT}/plan")
             if report.status == "ok":
-                replay.set_plan_objects(self.meshcat, f"{replay.ROOT}/plan", report.to_json(), self.kin)
+                meshcat_draw.set_plan_objects(self.meshcat, f"{meshcat_draw.ROOT}/plan", report.to_json(), self.kin)
             self._drawn_plan = k
         return EventStatus.Succeeded()
 

@@ -42,6 +42,7 @@ def _cmd_diagram(args):
 
 def _cmd_experiment(args):
     import shlex
+
     from .experiments import ExperimentError, listing, load_definition, run_experiment, with_objects, write_report
     from .experiments.runner import make_executor
     out = args.out or "results/experiments"
@@ -52,11 +53,13 @@ def _cmd_experiment(args):
         raise ExperimentError("name an experiment (`nbvs experiment --list` lists them) or `report`")
     if args.names == ["report"]:
         dest, names = write_report(out, args.to or "docs/results.md")
-        print(f"{dest}: {len(names)} tables ({', '.join(names) or 'none found in ' + out})")
+        print(f"{dest}: {len(names)} tables ({', '.join(names)})")
         return
-    defs = [with_objects(load_definition(n), args.object) if args.object else load_definition(n) for n in args.names]
+    defs = [with_objects(load_definition(n), args.object) if args.object else load_definition(n)
+            for n in args.names]
     command = shlex.join(["nbvs", "experiment", *args.names]
-                         + (["--quick"] if args.quick else []) + (["--seeds", *map(str, args.seeds)] if args.seeds else [])
+                         + (["--quick"] if args.quick else [])
+                         + (["--seeds", *map(str, args.seeds)] if args.seeds else [])
                          + (["--jobs", str(args.jobs)] if args.jobs else []) + ["--executor", args.executor]
                          + (["--address", args.address] if args.address else []) + ["--out", out]
                          + (["--retry-failed"] if args.retry_failed else [])

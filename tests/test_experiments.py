@@ -13,8 +13,17 @@ from pathlib import Path
 import pytest
 
 from nbvs_drake.cli import main
-from nbvs_drake.experiments import (comparable, compared_markdown, definition_names, expand, load_definition,
-                                    load_table, resolve, with_objects, write_report, write_table)
+from nbvs_drake.experiments import (
+    comparable,
+    compared_markdown,
+    definition_names,
+    expand,
+    load_definition,
+    load_table,
+    resolve,
+    with_objects,
+    write_table,
+)
 
 NAMES = ["hrt", "objects", "ig_vs_du", "samples", "motion_noise", "clutter", "ort_size", "ort_vs_rs", "metrics",
          "prediction"]
@@ -269,9 +278,37 @@ def test_definitions_ship_as_package_data():
     """pyproject.toml's package-data takes every definition file into a wheel."""
     import fnmatch
     import tomllib
+
     from nbvs_drake.experiments import DEFINITIONS_DIR
     root = Path(__file__).resolve().parents[1]
     globs = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"][
         "nbvs_drake.experiments"]
     files = [p.relative_to(DEFINITIONS_DIR.parent).as_posix() for p in DEFINITIONS_DIR.glob("*")]
     assert files and all(any(fnmatch.fnmatch(f, g) for g in globs) for f in files)
+
+
+def test_a_run_whose_worker_dies_fails_alone(tmp_path):
+    """A worker process killed in the middle of its run (as a crash in native code would end
+    it): that run is recorded as failed, a new worker takes the remaining runs, and
+    `--retry-failed` completes the table."""
+    y = tmp_path / "tiny.yaml"
+    y.write_text(TINY)
+    out = tmp_path / "w"
+    log = out / "tiny" / "runner.log"
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and not (log.exists() and "start 0.3_s1 (worker pid" in log.read_text()):
+        time.sleep(0.1)
+    pid = int(log.read_text().split("start 0.3_s1 (worker pid ")[1].split(")")[0])
+    os.kill(pid, signal.SIGKILL)
+    stdout, _ = proc.communicate(timeout=600)
+    assert proc.returncode == 1, stdout
+    rec = json.loads((out / "tiny" / "runs" / "0.3_s1.failed.json").read_text())
+    assert "worker process died" in rec["error"] and rec["exitcode"] == -signal.SIGKILL
+    t = load_table(out / "tiny")
+    assert t["runs_finished"] == 1 and t.cells[0]["failed_seeds"] == [1]
+    again = _cli(str(y), "--jobs", "1", "--out", str(out), "--retry-failed")
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert load_table(out / "tiny")["runs_finished"] == 2
+    assert not (out / "tiny" / "runs" / "0.3_s1.failed.json").exists()

@@ -9,8 +9,16 @@ Ray), keeping every finished run, and writes its table and figures.
 """
 
 from .aggregate import Table, comparable, compared_markdown, load_table, write_table
-from .definition import (DEFINITIONS_DIR, ExperimentError, RunSpec, definition_names, expand, load_definition,
-                         resolve, with_objects)
+from .definition import (
+                         DEFINITIONS_DIR,
+                         ExperimentError,
+                         RunSpec,
+                         definition_names,
+                         expand,
+                         load_definition,
+                         resolve,
+                         with_objects,
+)
 from .report import listing, write_report
 from .runner import run_experiment
 

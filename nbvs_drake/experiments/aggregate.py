@@ -315,7 +315,7 @@ def build_table(r: dict, exp_dir: Path, stamp: dict | None = None) -> dict:
         an = r.get("analysis") or {}
         if an.get("kind") == "prediction":
             pairs = []
-            for s, run in sorted(finished.items()):
+            for _, run in sorted(finished.items()):
                 pairs += prediction_pairs(run, int(an.get("skip_first", 0)))
             cell["prediction"] = dict(fit(pairs), pairs=[[float(a), float(b)] for a, b in pairs])
         out_cells.append(cell)
@@ -445,14 +445,16 @@ def markdown(r: dict, table: dict, figures: list[str]) -> str:
         L += [f"{ref}.", ""]
     if r.get("description"):
         L += [" ".join(str(r["description"]).split()), ""]
-    size = f"{table['runs_finished']} of {table['runs_expected']} runs finished; seeds {', '.join(map(str, table['seeds']))}"
+    size = (f"{table['runs_finished']} of {table['runs_expected']} runs finished; "
+            f"seeds {', '.join(map(str, table['seeds']))}")
     if table["quick"]:
         size += "; **quick version** (`--quick`: " + ", ".join(f"`{s}`" for s in r.get("extra_set") or []) + ")"
     L += [size + ".", ""]
     L += _md_table(fn, [dict(c, levels=c["levels"] or {"cell": "all"}) for c in rows], r.get("metrics") or [], digits)
     pub = r.get("published") or {}
     if pub.get("source"):
-        L += ["", f"*paper*: {r.get('paper', '')}, {pub['source']}" + (f" ({pub['conditions']})" if pub.get("conditions") else "") + "."]
+        cond = f" ({pub['conditions']})" if pub.get("conditions") else ""
+        L += ["", f"*paper*: {r.get('paper', '')}, {pub['source']}{cond}."]
     extra = _unmatched_published(r, table)
     if extra:
         L += ["", "Published rows without a counterpart here: " + "; ".join(extra) + "."]

@@ -144,7 +144,8 @@ def check_definition(d: dict) -> dict:
         for lv in f["levels"]:
             need(isinstance(lv.get("set", []), list), f"factor {f['name']} level {lv['label']}: set must be a list")
     seeds = d.get("seeds")
-    need(isinstance(seeds, list) and seeds and all(isinstance(s, int) for s in seeds), "seeds must be a list of integers")
+    need(isinstance(seeds, list) and seeds and all(isinstance(s, int) for s in seeds),
+         "seeds must be a list of integers")
     for sec in ("metrics", "timings", "series"):
         for m in d.get(sec) or []:
             need(isinstance(m, dict) and m.get("name"), f"each entry of {sec} needs a name, got {m!r}")
@@ -161,7 +162,8 @@ def check_definition(d: dict) -> dict:
         f = next((f for f in factors if f["name"] == fname), None)
         need(f is not None, f"quick.levels names no factor {fname!r}")
         known = {str(lv["label"]) for lv in f["levels"]}
-        need(set(map(str, labels)) <= known, f"quick.levels.{fname}: unknown levels {sorted(set(map(str, labels)) - known)}")
+        unknown = sorted(set(map(str, labels)) - known)
+        need(not unknown, f"quick.levels.{fname}: unknown levels {unknown}")
     return d
 
 
@@ -238,9 +240,9 @@ def expand(r: dict) -> list[RunSpec]:
     for combo in cells(r):
         scenario = r.get("scenario")
         overrides = list(r.get("set") or [])
-        for f, lv in combo.items():
+        for lv in combo.values():
             scenario = lv.get("scenario") or scenario
-        for f, lv in combo.items():
+        for lv in combo.values():
             overrides += list(lv.get("set") or [])
         overrides += list(r.get("extra_set") or [])
         if not scenario:

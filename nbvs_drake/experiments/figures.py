@@ -34,8 +34,19 @@ def _spec(r: dict, name: str) -> dict:
     return {"name": name}
 
 
+def _axis_label(spec: dict, name: str) -> str:
+    return spec.get("label", name.replace("_", " ")) + (f" ({spec['unit']})" if spec.get("unit") else "")
+
+
 def _curve_label(levels: dict, skip: str | None) -> str:
-    return "/".join(v for k, v in levels.items() if k != skip) or "all"
+    """'DU-MU', 'teapot/EU-MU'; a number is named by its factor: 'k = 2500'."""
+    def one(k, v):
+        try:
+            float(v)
+            return f"{k} = {v}"
+        except ValueError:
+            return v
+    return "/".join(one(k, v) for k, v in levels.items() if k != skip) or "all"
 
 
 def draw_series(r, table, fig_spec, path: Path):
@@ -55,7 +66,8 @@ def draw_series(r, table, fig_spec, path: Path):
             sd = np.array([np.nan if v is None else v for v in s["std"]], float)
             k = np.arange(1, len(m) + 1)
             runs = max(s["n"]) if s["n"] else 0
-            line, = ax.plot(k, m, "o-", ms=3, label=f"{_curve_label(c['levels'], panel_f)} ({runs} runs)")
+            line, = ax.plot(k, m, "o-", ms=3, label=f"{_curve_label(c['levels'], panel_f)} "
+                                                    f"({runs} run{'s' if runs != 1 else ''})")
             ax.fill_between(k, m - sd, m + sd, alpha=0.15, color=line.get_color())
         from matplotlib.ticker import MaxNLocator
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -122,7 +134,7 @@ def draw_versus(r, table, fig_spec, path: Path):
     if fig_spec.get("xscale"):
         ax.set_xscale(fig_spec["xscale"])
     ax.set_xlabel(fig_spec.get("xlabel", "x"))
-    ax.set_ylabel(fig_spec.get("ylabel") or spec.get("label", name) + (f" ({spec['unit']})" if spec.get("unit") else ""))
+    ax.set_ylabel(fig_spec.get("ylabel") or _axis_label(spec, name))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(fig_spec.get("title", ""))
@@ -146,7 +158,7 @@ def draw_bars(r, table, fig_spec, path: Path):
         if pub is not None:
             ax.plot([i - 0.3, i + 0.3], [pub, pub], "r-", lw=2, label="paper")
     ax.set_xticks(range(len(table["cells"])), [c["label"] for c in table["cells"]], rotation=20, fontsize=8)
-    ax.set_ylabel(fig_spec.get("ylabel") or spec.get("label", name) + (f" ({spec['unit']})" if spec.get("unit") else ""))
+    ax.set_ylabel(fig_spec.get("ylabel") or _axis_label(spec, name))
     ax.grid(alpha=0.3, axis="y")
     h, lab = ax.get_legend_handles_labels()
     if h:

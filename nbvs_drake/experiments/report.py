@@ -39,7 +39,8 @@ def listing() -> str:
         lines.append(f"{'':13s} quick: {quick} runs, {_fmt_s(q)} per run (measured)" if q else
                      f"{'':13s} quick: {quick} runs")
         if cost.get("machine"):
-            lines.append(f"{'':13s} measured on {cost['machine']}" + (f", {cost['measured']}" if cost.get("measured") else ""))
+            when = f", {cost['measured']}" if cost.get("measured") else ""
+            lines.append(f"{'':13s} measured on {cost['machine']}{when}")
     return "\n".join(lines)
 
 
@@ -71,6 +72,9 @@ def write_report(out_root, dest) -> tuple[Path, list[str]]:
         base = d.name[:-len("_quick")] if d.name.endswith("_quick") else d.name
         return (order.get(base, len(order)), base, d.name.endswith("_quick"))
     found.sort(key=key)
+    if not found:
+        from .definition import ExperimentError
+        raise ExperimentError(f"no experiment tables (*/table.json) in {out_root}; {dest} left as it is")
     parts = ["# Results", "",
              f"Assembled by `nbvs experiment report --out {out_root} --to {dest}` from each experiment's "
              "`table.md`. Each table says which command, at which git commit and on which date, produced it. "

@@ -11,10 +11,10 @@ and does not stop the batch; `retry_failed` reruns those. Each run's stdout and 
 `runner.log`.
 
 Executors:
-- `local`: one spawned process per run (Drake and numba dislike fork), `jobs` at a time, each
-  with its share of the cores as numba threads (NUMBA_NUM_THREADS, numba.set_num_threads). A
-  process per run, not a long-lived pool: a run that aborts its process (a crash in native
-  code) fails alone.
+- `local`: a pool of `jobs` spawned worker processes (Drake and numba dislike fork), each with
+  its share of the cores as numba threads (NUMBA_NUM_THREADS, numba.set_num_threads) and
+  reused run after run; a run that kills its worker (a crash in native code) fails alone and
+  the worker is replaced.
 - `ray`: each run a Ray task, on the cluster at `address` or on a local `ray.init(num_cpus=jobs)`
   started for the batch. The task runs in a temporary folder on its worker and returns the
   run folder as a gzipped tarball with its log; the driver writes them, so workers need no
@@ -106,20 +106,29 @@ def _restore_output(saved):
     os.close(saved[1])
 
 
-def _local_child(spec: dict, tmp: str, log: str, threads: int, info_path: str):
-    """Entry point of a spawned run process."""
+def _pool_worker(conn, threads: int):
+    """A spawned worker of the local executor: runs one spec after another as the batch
+    sends them (each run's output into its own log), replies with the outcome, and stops on
+    None or when the batch goes away."""
     _die_with_parent()
     os.environ["NUMBA_NUM_THREADS"] = str(threads)
-    _redirect_output(Path(log))
-    try:
-        info = execute_run(spec, Path(tmp), threads)
-        Path(info_path).write_text(json.dumps(info))
-    except BaseException as e:  # noqa: BLE001 - recorded, then a non-zero exit
-        traceback.print_exc()
-        sys.stderr.flush()
-        Path(info_path).write_text(json.dumps({"error": f"{type(e).__name__}: {e}",
-                                               "traceback": traceback.format_exc()}))
-        os._exit(1)
+    while True:
+        try:
+            msg = conn.recv()
+        except (EOFError, OSError):
+            break
+        if msg is None:
+            break
+        spec, tmp, log = msg
+        saved = _redirect_output(Path(log))
+        try:
+            reply = {"info": execute_run(spec, Path(tmp), threads)}
+        except Exception as e:  # noqa: BLE001 - recorded by the batch
+            traceback.print_exc()
+            reply = {"error": f"{type(e).__name__}: {e}", "traceback": traceback.format_exc()}
+        finally:
+            _restore_output(saved)
+        conn.send(reply)
 
 
 def _ray_body(spec: dict, threads: int) -> dict:
@@ -152,47 +161,93 @@ def _ray_body(spec: dict, threads: int) -> dict:
 class LocalExecutor:
     name = "local"
 
-    def close(self):
-        pass
-
     def __init__(self, jobs: int):
         self.jobs = max(1, jobs)
         self.threads = max(1, cpu_count() // self.jobs)
+        self._workers = []  # kept from one experiment to the next until close()
+
+    def close(self):
+        """Stops the idle workers (asks them to exit, then kills what is left)."""
+        for w in self._workers:
+            if w.get("dead"):
+                continue
+            if w["busy"] is None:
+                try:
+                    w["conn"].send(None)
+                except (OSError, ValueError):
+                    pass
+                w["proc"].join(timeout=10)
+            if w["proc"].is_alive():
+                w["proc"].kill()
+                w["proc"].join()
+        self._workers = []
 
     def describe(self) -> str:
-        return f"local, {self.jobs} processes x {self.threads} numba threads"
+        return f"local, {self.jobs} worker processes x {self.threads} numba threads"
+
+    def _spawn(self, ctx):
+        parent, child = ctx.Pipe()
+        p = ctx.Process(target=_pool_worker, args=(child, self.threads), name="nbvs-experiment-worker")
+        p.start()
+        child.close()
+        return {"proc": p, "conn": parent, "busy": None}
 
     def run(self, batch, todo: list[RunSpec]):
+        """A pool of `jobs` spawned workers, each reused run after run (the imports and the
+        JIT caches are loaded once); a worker that dies fails its run alone and is replaced."""
         import multiprocessing as mp
         from multiprocessing.connection import wait
         ctx = mp.get_context("spawn")
         pending = list(todo)
-        active = {}
+        self._workers = [w for w in self._workers if not w.get("dead") and w["proc"].is_alive()]
+        self._workers += [self._spawn(ctx) for _ in range(min(self.jobs, len(pending)) - len(self._workers))]
+        workers = self._workers
+        ok = False
         try:
-            while pending or active:
-                while pending and len(active) < self.jobs:
-                    spec = pending.pop(0)
-                    tmp = batch.new_partial(spec)
-                    info = tmp.with_name(tmp.name + ".info.json")
-                    p = ctx.Process(target=_local_child, name=f"nbvs-{spec.run_id}",
-                                    args=(spec.to_json(), str(tmp), str(batch.log_path(spec)), self.threads, str(info)))
-                    p.start()
-                    batch.event(f"start {spec.run_id} (pid {p.pid})")
-                    active[p.sentinel] = (p, spec, tmp, info)
-                for s in wait(list(active), timeout=5.0):
-                    p, spec, tmp, info_f = active.pop(s)
-                    p.join()
-                    info = json.loads(info_f.read_text()) if info_f.is_file() else {}
-                    info_f.unlink(missing_ok=True)
-                    if p.exitcode == 0 and "error" not in info and (tmp / "summary.json").is_file():
-                        batch.finished(spec, tmp, info)
+            while True:
+                for w in workers:
+                    if w["busy"] is None and pending:
+                        spec = pending.pop(0)
+                        tmp = batch.new_partial(spec)
+                        w["conn"].send((spec.to_json(), str(tmp), str(batch.log_path(spec))))
+                        w["busy"] = (spec, tmp)
+                        batch.event(f"start {spec.run_id} (worker pid {w['proc'].pid})")
+                busy = [w for w in workers if w["busy"] is not None]
+                if not busy:
+                    break
+                ready = set(wait([w["conn"] for w in busy] + [w["proc"].sentinel for w in busy], timeout=5.0))
+                for i, w in enumerate(workers):
+                    if w["busy"] is None or not ({w["conn"], w["proc"].sentinel} & ready):
+                        continue
+                    spec, tmp = w["busy"]
+                    reply = None
+                    if w["conn"].poll():
+                        try:
+                            reply = w["conn"].recv()
+                        except (EOFError, OSError):
+                            reply = None
+                    if reply is None:  # the worker died in the run (a crash in native code, a kill)
+                        w["proc"].join(timeout=10)
+                        batch.failed(spec, tmp, f"the run's worker process died (exit code {w['proc'].exitcode})",
+                                     None, w["proc"].exitcode)
+                        w["conn"].close()
+                        workers[i] = self._spawn(ctx) if pending else {"proc": w["proc"], "conn": w["conn"],
+                                                                        "busy": None, "dead": True}
+                        continue
+                    w["busy"] = None
+                    if "error" not in reply and (tmp / "summary.json").is_file():
+                        batch.finished(spec, tmp, reply["info"])
                     else:
-                        err = info.get("error") or f"the run process exited with code {p.exitcode}"
-                        batch.failed(spec, tmp, err, info.get("traceback"), p.exitcode)
+                        batch.failed(spec, tmp, reply.get("error") or "the run wrote no summary.json",
+                                     reply.get("traceback"), None)
+            ok = True
         finally:
-            for p, spec, tmp, _ in active.values():  # interrupted: stop the runs in flight
-                p.kill()
-                p.join()
+            if not ok:  # interrupted: kill the runs in flight
+                for w in workers:
+                    if not w.get("dead") and w["busy"] is not None and w["proc"].is_alive():
+                        w["proc"].kill()
+                        w["proc"].join()
+                self.close()
 
 
 class RayExecutor:

@@ -39,13 +39,18 @@ def render_camera_info(sensor: SensorConfig):
 
 
 def ray_directions(sensor: SensorConfig, stride: int = 1):
-    """Unit ray directions in the camera frame (+z forward, +x right, +y down) through every
-    `stride`-th pixel centre, and each ray's [t_near, t_far] (the depth range along the ray)."""
+    """Unit ray directions in the camera frame (+z forward, +x right, +y down), row by row, and
+    each ray's [t_near, t_far] (the sensor's depth range z_near..z_far along the ray: a surface
+    at depth below z_near returns nothing). stride 1: through every pixel centre. stride n:
+    one ray per n x n pixel block, through the block's centre; the ceil(w / n) x ceil(h / n)
+    blocks are centred on the image, so the outermost rays lie within (n - 1) / 2 pixels of
+    the outermost pixel centres on every side (the field of view keeps its edges, symmetrically,
+    also when n does not divide the image; for an n that divides it, the blocks tile it)."""
     s = resolve_sensor(sensor)
     w, h, fx, fy, cx, cy = intrinsics(sensor)
-    off = (stride - 1) / 2.0
-    u = np.arange(0, w - off, stride) + off
-    v = np.arange(0, h - off, stride) + off
+    nu, nv = -(-w // stride), -(-h // stride)
+    u = cx + (np.arange(nu) - (nu - 1) / 2.0) * stride
+    v = cy + (np.arange(nv) - (nv - 1) / 2.0) * stride
     uu, vv = np.meshgrid(u, v)
     d = np.stack([(uu.ravel() - cx) / fx, (vv.ravel() - cy) / fy, np.ones(uu.size)], axis=1)
     d /= np.linalg.norm(d, axis=1, keepdims=True)

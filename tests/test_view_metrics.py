@@ -1,5 +1,6 @@
 """Every view metric of the DDA kernel against a brute-force reference (fine-step sampling
-along each ray) on small random grids, and against its defining property."""
+along each ray from the camera, with the sensor's minimum range) on small random grids, and
+against its defining property."""
 import math
 
 import numpy as np
@@ -16,24 +17,45 @@ def _entropy(l):
     return -p * math.log(p) - (1 - p) * math.log(1 - p)
 
 
-def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2):
-    """Reference: voxels along each ray by sampling every res/4000."""
+def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2, unknown_blinds=True):
+    """Reference: voxels along each ray from the camera (t = 0), found by sorting every
+    crossing of a voxel boundary plane along the ray in [0, t_far] and sampling each segment
+    between consecutive crossings at its middle (exact, where fixed-step sampling misses the
+    short segments of a ray passing close to a voxel edge).
+    The sensor model: a ray meeting an occupied or unknown voxel among the voxels it enters
+    before t_near is blind (counted only in M_BLIND_RAYS; unknown_blinds False: only an
+    occupied one); otherwise the metrics are those of its voxels in [t_near, t_far]."""
     dims = np.array(logodds.shape)
     first, posterior, occ, fig_set = set(), set(), set(), set()
     sig = 0.0
-    rsv = oc_rays = un_rays = nrays = 0
+    rsv = oc_rays = un_rays = nrays = blind = 0
     for d, tn, tf in zip(dirs, t_near, t_far):
-        ts = np.arange(tn, tf, res / 4000)
-        pts = o + ts[:, None] * d
+        cuts = [0.0, tf]
+        for a in range(3):
+            if abs(d[a]) > 1e-12:
+                cuts.extend((bmin[a] + np.arange(dims[a] + 1) * res - o[a]) / d[a])
+        cuts = np.unique(np.clip(cuts, 0.0, tf))
+        ts = cuts[:-1]  # segment starts; each segment sampled at its middle
+        pts = o + (0.5 * (cuts[:-1] + cuts[1:]))[:, None] * d
         idx = np.floor((pts - bmin) / res).astype(int)
         inside = np.all((idx >= 0) & (idx < dims), axis=1)
         if not inside.any():
             continue
-        nrays += 1
-        seq = []
-        for v in map(tuple, idx[inside]):
+        seq, entry = [], []  # the voxels in the grid and the t at which the ray enters each
+        for v, t in zip(map(tuple, idx[inside]), ts[inside]):
             if not seq or seq[-1] != v:
                 seq.append(v)
+                entry.append(t)
+        def blinds(lv):
+            return lv > L_OCC or (unknown_blinds and lv >= L_FREE)
+        if any(t < tn and blinds(logodds[v]) for v, t in zip(seq, entry)):
+            blind += 1
+            continue
+        if not np.any(inside & (cuts[1:] > tn)):  # no part of the ray in the grid beyond t_near
+            continue
+        keep = [n for n, t in enumerate(entry) if n + 1 == len(entry) or entry[n + 1] > tn]
+        seq = [seq[n] for n in keep]  # the voxels the ray is in beyond t_near
+        nrays += 1
         n_unk = 0
         for n, v in enumerate(seq):
             lv = logodds[v]
@@ -53,7 +75,7 @@ def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2):
                 (first if n_unk == 1 else posterior).add(v)
     return {VM.M_UN_O: len(first), VM.M_OC_O: len(occ), VM.M_FIG: sum(_entropy(logodds[v]) for v in fig_set),
             VM.M_SIG: sig, VM.M_RSV: rsv, VM.M_RAYS: nrays, VM.M_OC_RAYS: oc_rays, VM.M_UN_RAYS: un_rays,
-            VM.M_N_POSTERIOR: len(posterior - first)}
+            VM.M_N_POSTERIOR: len(posterior - first), VM.M_BLIND_RAYS: blind}
 
 
 def _random_map(rng, dims=(9, 8, 7)):
@@ -289,3 +311,107 @@ def test_hrt_block_rays_estimate_the_uniform_metrics():
     assert hrt[VM.M_RAYS] == pytest.approx(uni[VM.M_RAYS], rel=0.05)
     assert hrt[VM.M_SIG] == pytest.approx(uni[VM.M_SIG], rel=0.15)
     assert hrt[VM.M_FIG] == pytest.approx(uni[VM.M_FIG], rel=0.25)
+
+
+# --------------------------------------------------------------------------------------
+# The sensor's minimum range: rays start at the camera; a non-free voxel entered before
+# t_near blinds the ray
+# --------------------------------------------------------------------------------------
+
+
+def _near_map(rng, o, res, dims=(12, 11, 10), r_clear=0.3, p_near=0.03):
+    """A random map whose voxels within r_clear of the camera o are free but for a few
+    (p_near) occupied or unknown ones, so that some rays are blinded within t_near and others
+    pass."""
+    lo = _random_map(rng, dims)
+    c = (np.stack(np.meshgrid(*[np.arange(n) for n in dims], indexing="ij"), -1) + 0.5) * res
+    near = np.linalg.norm(c - o, axis=-1) < r_clear
+    keep = rng.random(dims) < p_near
+    lo[near & ~keep] = -1.5
+    return lo
+
+
+@pytest.mark.parametrize("unknown_blinds", [True, False])
+@pytest.mark.parametrize("seed", range(6))
+def test_kernel_matches_brute_force_from_inside_the_grid(seed, unknown_blinds):
+    rng = np.random.default_rng(200 + seed)
+    res, bmin = 0.1, np.zeros(3)
+    o = np.array([0.53, 0.47, 0.42]) + rng.uniform(-0.05, 0.05, 3)
+    lo = _near_map(rng, o, res)
+    dirs = rng.normal(size=(60, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_near = rng.uniform(0.1, 0.35, len(dirs))
+    t_far = np.full(len(dirs), 2.0)
+    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
+                            near_unknown_blinds=unknown_blinds)[0]
+    ref = _brute(lo, bmin, res, o, dirs, t_near, t_far, unknown_blinds=unknown_blinds)
+    assert ref[VM.M_BLIND_RAYS] < len(dirs) and ref[VM.M_RAYS] > 0
+    assert ref[VM.M_BLIND_RAYS] > 0 or not unknown_blinds  # both kinds of ray occur
+    for m, v in ref.items():
+        assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
+    hrt = VM.evaluate_views_hrt(lo, 1, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
+                                width=0, near_unknown_blinds=unknown_blinds)[0]
+    bits, _, _ = cells.coarse_summary(lo, voxel.entropy_grid(lo), 1, L_FREE, L_OCC)
+    if not np.any(bits == voxel.C_UNKNOWN):  # every cell refined: HRT is exact too
+        np.testing.assert_allclose(hrt, got, rtol=1e-9)
+    assert hrt[VM.M_BLIND_RAYS] == got[VM.M_BLIND_RAYS]  # the minimum range is exact in HRT
+
+
+def _row(lo, t_near, o=(-0.5, 0.5, 0.5), t_far=10.0, a=0):
+    d = np.array([[1.0, 0.0, 0.0]])
+    args = (np.zeros(3), 1.0, np.array([o]), np.eye(3)[None], d, np.full(1, t_near), np.full(1, t_far),
+            L_FREE, L_OCC, 1)
+    return VM.evaluate_views_hrt(lo, a, *args)[0] if a else VM.evaluate_views(lo, *args)[0]
+
+
+@pytest.mark.parametrize("a", [0, 1])
+def test_surface_within_the_minimum_range_blinds_the_ray(a):
+    # voxels x in [0, 6) along the ray, the camera at x = -0.5
+    lo, *_ = _one_ray_grid()
+    lo[2] = 1.2  # occupied, entered at t = 2.5
+    lo[3:] = 0.0  # unknown behind it
+    far = _row(lo, 2.4, a=a)  # beyond the minimum range: overlap, as before
+    assert far[VM.M_OC_RAYS] == 1 and far[VM.M_OC_O] == 1 and far[VM.M_RAYS] == 1 and far[VM.M_BLIND_RAYS] == 0
+    near = _row(lo, 2.6, a=a)  # the surface is nearer than the minimum range: nothing at all
+    assert near[VM.M_BLIND_RAYS] == 1
+    assert not np.any(np.delete(near, VM.M_BLIND_RAYS)), near
+    # an unknown voxel entered before t_near may hold such a surface: the ray ends there too
+    lo[2] = 0.0
+    near = _row(lo, 2.6, a=a)
+    assert near[VM.M_BLIND_RAYS] == 1 and not np.any(np.delete(near, VM.M_BLIND_RAYS))
+    # free voxels before t_near are passed through; the voxel straddling t_near counts as
+    # entered before it
+    lo[:] = -1.5
+    lo[3:] = 0.0  # unknown from t = 3.5
+    assert _row(lo, 3.5, a=a)[VM.M_UN_O] == 1 and _row(lo, 3.4, a=a)[VM.M_UN_O] == 1
+    assert _row(lo, 3.6, a=a)[VM.M_BLIND_RAYS] == 1 and _row(lo, 3.6, a=a)[VM.M_UN_O] == 0
+    # the camera standing in an unknown voxel is blinded at once
+    blind = _row(lo, 0.2, o=(3.5, 0.5, 0.5), a=a)
+    assert blind[VM.M_BLIND_RAYS] == 1 and blind[VM.M_UN_O] == 0 and blind[VM.M_FIG] == 0
+
+
+def test_camera_inside_wbox_next_to_unknown_space_predicts_nothing_behind_it():
+    # free space around the camera (cleared by earlier scans), unknown space 0.2 m ahead and
+    # a known surface behind it; minimum range 0.4 m: the unknown voxels within 0.4 m may hold
+    # a surface that blinds the camera, so nothing behind them is predicted
+    res = 0.02
+    lo = np.full((60, 20, 20), -1.5, np.float32)
+    lo[20:40] = 0.0  # unknown from x = 0.40 m
+    lo[40] = 1.2  # occupied at x = 0.80 m
+    o = np.array([0.2, 0.2, 0.2])
+    rng = np.random.default_rng(1)
+    dirs = np.array([1.0, 0.0, 0.0]) + rng.uniform(-0.05, 0.05, (200, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    tn = 0.4 / dirs[:, 0]  # the depth range along each ray (camera +z along world +x)
+    tf = 5.0 / dirs[:, 0]
+    R = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # camera +z along world +x
+    dcam = dirs @ R  # the same rays in the camera frame
+    met = VM.evaluate_views(lo, np.zeros(3), res, o[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]
+    assert met[VM.M_BLIND_RAYS] == len(dirs)
+    assert met[VM.M_UN_O] == met[VM.M_OC_O] == met[VM.M_FIG] == met[VM.M_OC_RAYS] == met[VM.M_RAYS] == 0
+    hrt = VM.evaluate_views_hrt(lo, 2, np.zeros(3), res, o[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]
+    assert hrt[VM.M_BLIND_RAYS] == len(dirs) and hrt[VM.M_UN_O] == hrt[VM.M_FIG] == hrt[VM.M_RAYS] == 0
+    # 0.7 m back the unknown space lies beyond the minimum range: it is seen
+    o2 = np.array([-0.3, 0.2, 0.2])
+    met2 = VM.evaluate_views(lo, np.zeros(3), res, o2[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]
+    assert met2[VM.M_BLIND_RAYS] == 0 and met2[VM.M_UN_O] > 0 and met2[VM.M_RAYS] > 0

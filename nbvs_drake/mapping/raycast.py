@@ -3,6 +3,7 @@
 Grid convention: voxel (i, j, k) spans [bmin + (i, j, k) * res, bmin + (i+1, j+1, k+1) * res).
 Rays are clipped to the grid (slab test), then walked voxel by voxel by exact 3D DDA
 (Amanatides & Woo): `axis_start` sets up one axis, `dda_step` moves to the next voxel.
+`blinded_within` is the sensor's minimum range as the view evaluation models it.
 `integrate_scan` applies OctoMap's sensor model along the rays of one scan.
 """
 
@@ -12,6 +13,8 @@ import math
 
 import numba as nb
 import numpy as np
+
+from .voxel import OCCUPIED, UNKNOWN
 
 _MISS = 1  #: integrate_scan's mark of a voxel a ray crossed
 _HIT = 2  #: integrate_scan's mark of the voxel of a hit point (wins over misses)
@@ -81,6 +84,34 @@ def dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk, i_lo, i_hi, j_lo, j_hi
     k += sk
     tk += dk
     return i, j, k, ti, tj, tk, k_lo <= k <= k_hi
+
+
+@nb.njit(cache=True, inline="always")
+def blinded_within(cls, bmin, res, ox, oy, oz, dx, dy, dz, t0, t_near, t1, unknown_blinds=True):
+    """The sensor's minimum range: whether the ray o + t d, clipped to the grid as [t0, t1]
+    (t0 >= 0: from the camera), meets a voxel that is not free among those it enters before
+    t_near (the voxel it starts in included). A surface nearer than the minimum range returns
+    nothing (DepthRange's z_near) and hides what lies behind it: an occupied voxel entered
+    before t_near blinds the ray, and so, conservatively, does an unknown one (it may hold
+    such a surface; `unknown_blinds` False: only occupied voxels blind). Free voxels are passed
+    through. `cls`: voxel classes (voxel.classes_grid)."""
+    if t0 >= t_near or t0 > t1:
+        return False
+    nx, ny, nz = cls.shape
+    i, si, ti, di = axis_start(ox, dx, t0, bmin[0], res, nx)
+    j, sj, tj, dj = axis_start(oy, dy, t0, bmin[1], res, ny)
+    k, sk, tk, dk = axis_start(oz, dz, t0, bmin[2], res, nz)
+    while True:
+        c = cls[i, j, k]
+        if c == OCCUPIED or (unknown_blinds and c == UNKNOWN):
+            return True
+        tnext = min(ti, tj, tk)  # where the ray enters the next voxel
+        if tnext >= t_near or tnext >= t1:
+            return False
+        i, j, k, ti, tj, tk, inside = dda_step(i, j, k, si, sj, sk, ti, tj, tk, di, dj, dk,
+                                               0, nx - 1, 0, ny - 1, 0, nz - 1)
+        if not inside:
+            return False
 
 
 @nb.njit(cache=True, inline="always")

@@ -9,6 +9,12 @@ Along the ray, the first unknown voxel is counted in n_first, later unknown voxe
 n_posterior; every intercepted voxel is never cast again. Past an occupied voxel, the
 voxels the ray would cross up to the end of the frustum are marked intercepted but not
 discovered (occluded).
+
+The sensor model is the view evaluation's (mapping.view_metrics): a ray starts at the camera
+and one that meets an occupied or (conservatively) an unknown voxel among the voxels it
+enters before the minimum range (depth z_near) is blinded: it discovers nothing and the
+voxels it would cross beyond the minimum range, its target included, are marked intercepted
+(occluded).
 """
 
 from __future__ import annotations
@@ -19,12 +25,12 @@ import numba as nb
 import numpy as np
 from scipy import ndimage
 
-from .raycast import axis_start, clip_ray, dda_step
+from .raycast import axis_start, blinded_within, clip_ray, dda_step
 from .voxel import OCCUPIED, UNKNOWN
 
 
 @nb.njit(cache=True)
-def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far, visited, tag):
+def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far, visited, tag, unknown_blinds):
     nx, ny, nz = cls.shape
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
     # unknown voxels inside the frustum, with their distances
@@ -68,7 +74,11 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
         L = math.sqrt(dx * dx + dy * dy + dz * dz)
         dx, dy, dz = dx / L, dy / L, dz / L
         dcz = R[0, 2] * dx + R[1, 2] * dy + R[2, 2] * dz  # depth per unit length
-        t0, t1 = clip_ray(o[0], o[1], o[2], dx, dy, dz, z_near / dcz, z_far / dcz, bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        t_near = z_near / dcz
+        # from the camera up to the maximum range; blinded within the minimum range?
+        t0, t1 = clip_ray(o[0], o[1], o[2], dx, dy, dz, 0.0, z_far / dcz, bmin[0], bmin[1], bmin[2], ex, ey, ez)
+        occluded = blinded_within(cls, bmin, res, o[0], o[1], o[2], dx, dy, dz, t0, t_near, t1, unknown_blinds)
+        t0 = max(t0, t_near)
         if t0 > t1:
             visited[flat] = tag
             continue
@@ -77,7 +87,6 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
         j, sj, tj, dj = axis_start(o[1], dy, t0, bmin[1], res, ny)
         k, sk, tk, dk = axis_start(o[2], dz, t0, bmin[2], res, nz)
         seen_unknown = False
-        occluded = False
         while True:
             f = (i * ny + j) * nz + k
             c = cls[i, j, k]
@@ -104,9 +113,11 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
 
 
 @nb.njit(cache=True, parallel=True)
-def voxel_sorted_views(cls, bmin, res, cam_pos, cam_rot, fx, fy, cx, cy, w, h, z_near, z_far, n_chunks):
+def voxel_sorted_views(cls, bmin, res, cam_pos, cam_rot, fx, fy, cx, cy, w, h, z_near, z_far, n_chunks,
+                       near_unknown_blinds=True):
     """(N, 3) per view: n_first, n_posterior, rays cast. cls: int8 classes (voxel.classes_grid);
-    cam_rot columns are the camera axes (+z forward)."""
+    cam_rot columns are the camera axes (+z forward). near_unknown_blinds False: only occupied
+    voxels blind a ray within the minimum range."""
     n = cam_pos.shape[0]
     out = np.zeros((n, 3))
     visited = np.zeros((n_chunks, cls.size), np.int32)
@@ -116,7 +127,7 @@ def voxel_sorted_views(cls, bmin, res, cam_pos, cam_rot, fx, fy, cx, cy, w, h, z
         hi = min(n, lo + per)
         for v in range(lo, hi):
             a, b, r = _voxel_sorted_one(cls, bmin, res, cam_pos[v], cam_rot[v], fx, fy, cx, cy, w, h,
-                                        z_near, z_far, visited[c], v + 1)
+                                        z_near, z_far, visited[c], v + 1, near_unknown_blinds)
             out[v, 0] = a
             out[v, 1] = b
             out[v, 2] = r

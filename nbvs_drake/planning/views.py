@@ -17,10 +17,19 @@ from ..sensor import ray_directions
 
 
 class ViewEvaluator:
-    """Scores robot states by simulating their scans in the map (batch numba kernel)."""
+    """Scores robot states by simulating their scans in the map (batch numba kernel) with the
+    sensor's model (mapping.view_metrics): the camera's pixel grid (one ray per
+    planner.ray_stride x ray_stride block), field of view and depth range; each ray starts at
+    the camera, and what lies within the minimum range (known surface, or unknown space that
+    may hold one) blinds it. The planner's working range (planner.max_view_distance) is a
+    separate filter of the candidates (candidates.StateSampler).
+    near_unknown_blinds False: only known surface within the minimum range blinds a ray
+    (unknown space there is passed through as the old model did; see view_metrics)."""
 
-    def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None, hrt_a: int | None = None):
+    def __init__(self, kin: RobotKinematics, sc: Scenario, stride: int | None = None, hrt_a: int | None = None,
+                 near_unknown_blinds: bool = True):
         self.kin = kin
+        self.near_unknown_blinds = bool(near_unknown_blinds)
         self.sensor = sc.sensor
         self.stride = stride or sc.planner.ray_stride
         self.hrt_a = sc.planner.hrt_a if hrt_a is None else hrt_a
@@ -50,7 +59,8 @@ class ViewEvaluator:
         s = resolve_sensor(self.sensor)
         res = seed001.voxel_sorted_views(cls, omap.spec.bmin.astype(np.float64), omap.spec.res,
                                          np.ascontiguousarray(X[:, :3, 3]), np.ascontiguousarray(X[:, :3, :3]),
-                                         fx, fy, cx, cy, wd, ht, s.z_near, s.z_far, min(self.n_chunks, len(q)))
+                                         fx, fy, cx, cy, wd, ht, s.z_near, s.z_far, min(self.n_chunks, len(q)),
+                                         self.near_unknown_blinds)
         outer, inner = seed001.unknown_volumes(cls == UNKNOWN, omap.spec.res)
         return seed001.score(res[:, 0], res[:, 1], omap.spec.res, outer, inner, w)
 
@@ -68,8 +78,8 @@ class ViewEvaluator:
         args = (omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot, self.dirs, self.t_near,
                 self.t_far, m.l_free, m.l_occ, min(self.n_chunks, len(pos)))
         if self.hrt_a > 0:
-            return K.evaluate_views_hrt(lo, self.hrt_a, *args)
-        return K.evaluate_views(lo, *args)
+            return K.evaluate_views_hrt(lo, self.hrt_a, *args, near_unknown_blinds=self.near_unknown_blinds)
+        return K.evaluate_views(lo, *args, near_unknown_blinds=self.near_unknown_blinds)
 
 
 def registration_overlap(met: np.ndarray) -> np.ndarray:

@@ -13,9 +13,9 @@ import numpy as np
 from .config import load_scenario
 from .mapping import view_metrics as K
 from .mapping.occupancy import OccupancyMap
-from .planning.collision import CollisionModel
 from .planning import PlanRequest, make_planner
 from .planning.candidates import StateSampler
+from .planning.collision import CollisionModel
 from .robot import RobotKinematics
 from .scanning import ScanRenderer
 from .sensor import ray_directions
@@ -218,7 +218,8 @@ def bench_motion(seed: int = 0) -> dict:
     goal = far[np.flatnonzero(cm.free(far))[0]]  # a free state across the table
     t = time.perf_counter()
     res = rrt_ext_ext(start, goal, sc.robot, np.asarray(sc.planner.weights), sampler.sample_states,
-                      lambda s: motion.path_free(s, obstacles), kin.clip_arm, np.random.default_rng(seed), max_nodes=500,
+                      lambda s: motion.path_free(s, obstacles), kin.clip_arm, np.random.default_rng(seed),
+                      max_nodes=500,
                       step=sc.planner.tree_step)
     dt = time.perf_counter() - t
     out["rrt_cluttered_room"] = {"s": dt, "found": bool(res.found), "vertices": res.vertices,

@@ -10,7 +10,6 @@ rejected by :func:`validate` with a one-line message naming the field.
 import copy
 import dataclasses as dc
 import math
-from pathlib import Path
 
 from .errors import ScenarioError
 
@@ -143,9 +142,12 @@ class PlannerConfig:
     circle_range: float = 0.0
     #: view_circle: the cameras' height (m); 0: automatic (the middle of W_box's upper half)
     circle_height: float = 0.0
-    #: information term of the utility: "sur" (seed 000 surface factor, = VUV / un_total),
-    #: "fig", "sig", "vuv", "rsv" (seed 003; each normalised by the unknown voxels),
-    #: "seed001" (voxel-sorted ray casting score of seed 001)
+    #: information term of the utility: "sur" (Vasquez-Gomez et al. 2017's surface factor,
+    #: = VUV / un_total), "fig", "sig", "vuv", "rsv" (the ORT paper; each normalised by the
+    #: unknown voxels), "seed001" (Santos et al. 2020's voxel-sorted ray casting score),
+    #: "surface" (the share of the view's rays expected to return on new surface: rays that
+    #: cross unknown space to known surface, plus those that cross it and leave, weighted by the
+    #: chance their unknown stretch holds surface; docs/decisions.md says how it compares)
     metric: str = "sur"
     ort_vertices: int = 10000  #: ORT tree size k (seed 003: 10^4 is the good trade-off)
     tree_step: float = 1.0  #: tree extension step in the weighted metric of eq. 8
@@ -381,7 +383,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(_finite(p.circle_range) and p.circle_range >= 0,
              f"planner.circle_range must be 0 (automatic) or > 0 (m), got {p.circle_range}")
     _require(_finite(p.circle_height) and (p.circle_height == 0 or p.circle_height > s.table_height),
-             f"planner.circle_height must be 0 (automatic) or above the table top ({s.table_height} m), got {p.circle_height}")
+             f"planner.circle_height must be 0 (automatic) or above the table top ({s.table_height} m), "
+             f"got {p.circle_height}")
     if p.strategy == "view_circle" and p.circle_range:
         half = [(b - a) / 2 for a, b in zip(s.bbox_min, s.bbox_max)]
         h = p.circle_height or s.bbox_min[2] + 0.75 * (s.bbox_max[2] - s.bbox_min[2])
@@ -389,8 +392,8 @@ def validate(sc: Scenario) -> Scenario:
                  f"planner.circle_range {p.circle_range} m puts the view circle inside W_box (its footprint corners "
                  f"are {math.hypot(half[0], half[1]):.3f} m from the centre)")
     _require(p.view_poses >= 1, f"planner.view_poses must be >= 1, got {p.view_poses}")
-    _require(p.metric in ("sur", "fig", "sig", "vuv", "rsv", "seed001"),
-             f"planner.metric must be one of sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
+    _require(p.metric in ("surface", "sur", "fig", "sig", "vuv", "rsv", "seed001"),
+             f"planner.metric must be one of surface, sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
     _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")
     _require(p.tree_step > 0, f"planner.tree_step must be > 0, got {p.tree_step}")
     _require(p.rrt_max_nodes >= 0, f"planner.rrt_max_nodes must be >= 0, got {p.rrt_max_nodes}")
@@ -415,7 +418,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(0 <= p.hrt_a <= 4, f"planner.hrt_a must be in 0..4, got {p.hrt_a}")
     _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
     _require(p.max_view_distance == 0 or p.max_view_distance > rs.z_near,
-             f"planner.max_view_distance must be 0 or beyond the sensor's z_near ({rs.z_near}), got {p.max_view_distance}")
+             f"planner.max_view_distance must be 0 or beyond the sensor's z_near ({rs.z_near}), "
+             f"got {p.max_view_distance}")
 
     _require(sc.mission.max_scans >= 1, f"mission.max_scans must be >= 1, got {sc.mission.max_scans}")
     mi = sc.mission

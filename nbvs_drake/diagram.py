@@ -21,8 +21,8 @@ import numpy as np
 from .config import Scenario
 from .mapping.occupancy import OccupancyMap
 from .objects import ObjectMesh, build_object, ground_truth_points
-from .planning.collision import CollisionModel
 from .planning import make_planner
+from .planning.collision import CollisionModel
 from .robot import RobotKinematics, add_robot
 from .scene import add_environment
 
@@ -45,6 +45,7 @@ def add_robot_and_scene(builder, sc: Scenario, object_obj: str | None):
     from pydrake.geometry import SceneGraph
     from pydrake.multibody.plant import MultibodyPlant
     from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
     from .systems.depth_camera import add_renderer
 
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())

@@ -28,8 +28,18 @@ from pathlib import Path
 import numpy as np
 
 from .mapping.occupancy import OccupancyMap
-from .meshcat_draw import (COLLISION_RGBA, PLAN_RGBA, ROOT, TRAIL_RGBA, rgba, set_default_view, set_map_objects,
-                           set_plan_objects, set_wbox, states_array)
+from .meshcat_draw import (
+    COLLISION_RGBA,
+    PLAN_RGBA,
+    ROOT,
+    TRAIL_RGBA,
+    rgba,
+    set_default_view,
+    set_map_objects,
+    set_plan_objects,
+    set_wbox,
+    states_array,
+)
 
 
 def _resample(states: np.ndarray, n: int) -> np.ndarray:

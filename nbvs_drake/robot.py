@@ -8,14 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .resources import model_path
 from .errors import ScenarioError
+from .resources import model_path
 
 ARM_JOINTS = ["katana_j1", "katana_j2", "katana_j3", "katana_j4", "katana_j5"]
 BASE_JOINT = "base"
 CAMERA_BODY = "camera_optical"
-NQ = 8  # [x, y, theta, q1..q5]
-NU = 7  # [v, w_base, w1..w5]
 
 
 def urdf_path(name: str) -> Path:

@@ -30,6 +30,7 @@ class Scan:
 class ScanRenderer:
     def __init__(self, sc: Scenario, work_dir: Path, kin: RobotKinematics | None = None):
         from pydrake.systems.framework import DiagramBuilder
+
         from .diagram import add_robot_and_scene
         from .systems.depth_camera import CameraPose, add_depth_camera
 

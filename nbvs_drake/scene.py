@@ -73,9 +73,10 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
     obstacle_boxes: (centre, size) pairs added as collision-only boxes (the map's unknown
         and occupied voxels, merged).
     """
-    from pydrake.geometry import Box as DBox, Mesh
-    from pydrake.multibody.plant import CoulombFriction
+    from pydrake.geometry import Box as DBox
+    from pydrake.geometry import Mesh
     from pydrake.math import RigidTransform
+    from pydrake.multibody.plant import CoulombFriction
 
     world = plant.world_body()
     friction = CoulombFriction(0.5, 0.5)

@@ -18,9 +18,10 @@ def scenario() -> Scenario:
 @pytest.fixture(scope="session")
 def first_scan_map():
     """The default scene's map after the first scan from the start pose (real rendering)."""
-    from nbvs_drake.diagram import build_mission_diagram
     import tempfile
     from pathlib import Path
+
+    from nbvs_drake.diagram import build_mission_diagram
     sc = load_scenario()
     with tempfile.TemporaryDirectory() as tmp:
         md = build_mission_diagram(sc, Path(tmp), log=None)

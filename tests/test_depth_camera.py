@@ -5,8 +5,8 @@ from pydrake.systems.primitives import ConstantVectorSource
 
 from nbvs_drake.config import Scenario
 from nbvs_drake.diagram import add_robot_and_scene
-from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera
 from nbvs_drake.sensor import clean_scan
+from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera
 
 
 def _camera_diagram(kin, q):

@@ -1,11 +1,10 @@
 import json
 
 import pytest
+from conftest import small_scenario
 
 from nbvs_drake.config import load_scenario
 from nbvs_drake.mission import run_mission
-
-from conftest import small_scenario
 
 
 def _small(seed=0, scans=3):
@@ -205,7 +204,8 @@ def test_a_collision_stops_the_run_and_keeps_the_colliding_trajectory(tmp_path):
     np.testing.assert_allclose(c["executed_path"][-1], c["true_state"], atol=1e-4)  # sampled up to the stop
     # what it hit: a robot geometry against the real world (table, object, ...)
     assert c["contacts"] and all(x["depth_m"] > 0 for x in c["contacts"])
-    assert any(x["a"].startswith("patrolbot_katana::") or x["b"].startswith("patrolbot_katana::") for x in c["contacts"])
+    robot = "patrolbot_katana::"
+    assert any(x["a"].startswith(robot) or x["b"].startswith(robot) for x in c["contacts"])
     assert not any("W_box" in (x["a"], x["b"]) for x in c["contacts"])  # the truth has no W_box
     recs = [json.loads(x) for x in (tmp_path / "iterations.jsonl").read_text().splitlines()]
     assert len(recs) == s["scans"] == c["trajectory"]  # the scans before the colliding motion

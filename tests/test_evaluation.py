@@ -33,8 +33,8 @@ def test_scan_outcome_counts_revealed_voxels_points_and_overlap():
 def test_prediction_fit_and_prediction_fields():
     rng = np.random.default_rng(0)
     x = rng.uniform(0.01, 0.05, 12)
-    recs = [{"iteration": 1}] + [{"prediction": {"revealed_m3": float(a)}, "outcome": {"revealed_m3": float(1.5 * a + 0.002)}}
-                                 for a in x]
+    recs = [{"iteration": 1}] + [{"prediction": {"revealed_m3": float(a)},
+                                  "outcome": {"revealed_m3": float(1.5 * a + 0.002)}} for a in x]
     fit = prediction_fit(recs)
     assert fit["pairs"] == 12 and fit["r2"] == pytest.approx(1.0) and fit["slope"] == pytest.approx(1.5)
     assert np.isnan(prediction_fit(recs[:3])["r2"])  # two pairs: no fit
@@ -44,6 +44,7 @@ def test_prediction_fit_and_prediction_fields():
 
 def test_a_run_records_predictions_and_outcomes(tmp_path):
     from conftest import small_scenario
+
     from nbvs_drake.mission import run_mission
     s = run_mission(small_scenario(0, 4), tmp_path, verbose=False)
     recs = [json.loads(x) for x in (tmp_path / "iterations.jsonl").read_text().splitlines()]

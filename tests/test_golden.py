@@ -9,7 +9,6 @@ plan.factors.info, the information term's one name across strategies."""
 import json
 
 import pytest
-
 from golden.golden import RUNS, differences, golden_path, renamed, run
 
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
-from pydrake.systems.analysis import Simulator
 from pydrake.common.value import AbstractValue
+from pydrake.systems.analysis import Simulator
 
 from nbvs_drake.config import NoiseConfig
 from nbvs_drake.motion import ControlSequence, noise_sigmas, sample_truncated_normal, truncated_normal_logpdf

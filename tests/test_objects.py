@@ -7,8 +7,7 @@ import pytest
 
 from nbvs_drake.config import Scenario, load_scenario, validate
 from nbvs_drake.errors import ScenarioError
-from nbvs_drake.objects import (build_object, object_orientation, rpy_rotation, tessellate_teapot,
-                                up_rotation)
+from nbvs_drake.objects import build_object, object_orientation, rpy_rotation, tessellate_teapot, up_rotation
 
 
 def _write_box_obj(path, size, offset=(0.0, 0.0, 0.0)):

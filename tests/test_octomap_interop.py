@@ -59,7 +59,8 @@ def test_same_class_as_octomap_for_99_percent_of_wbox(scans):
     # occupied, which our cloud filter leaves out of the object map by design)
     cen = m.spec.centers()
     h = m.spec.res / 2
-    inside = np.all((cen - h >= np.array(sc.scene.bbox_min) - 1e-9) & (cen + h <= np.array(sc.scene.bbox_max) + 1e-9), axis=-1)
+    inside = np.all((cen - h >= np.array(sc.scene.bbox_min) - 1e-9) & (cen + h <= np.array(sc.scene.bbox_max) + 1e-9),
+                    axis=-1)
     inside &= cen[..., 2] - h >= sc.scene.table_height + 1e-9
     agree = np.mean(ours[inside] == theirs[inside])
     assert inside.sum() > 10000

@@ -12,6 +12,7 @@ import sysconfig
 from pathlib import Path
 
 import pytest
+from conftest import small_scenario
 
 import nbvs_drake
 from nbvs_drake import resources
@@ -19,8 +20,6 @@ from nbvs_drake.api import OUTPUTS, RunResult, _prepare_output, reconstruct
 from nbvs_drake.cli import main
 from nbvs_drake.config import load_scenario
 from nbvs_drake.errors import NbvsError, RunExistsError, ScenarioError
-
-from conftest import small_scenario
 
 ROOT = Path(__file__).resolve().parents[1]
 #: a two-scan run of the default scene, as `--set` overrides (small_scenario(scans=2, ...))

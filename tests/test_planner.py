@@ -35,7 +35,8 @@ def test_filter_cascade_stages(planner, first_scan_map, kin):
     st = res.stages
     # every stage keeps a subset of the previous one
     assert st["sampled"] >= st["director_ray"] == 1500
-    assert st["director_ray"] >= st["position"] >= st["registration"] >= st["surface"] >= st["top_k"] >= st["with_path"] >= 1
+    assert st["director_ray"] >= st["position"] >= st["registration"] >= st["surface"] >= st["top_k"]
+    assert st["top_k"] >= st["with_path"] >= 1
     assert st["top_k"] <= sc.planner.top_k
     # the chosen state: collision free, passes the registration filter, sees unknown space
     f = res.factors

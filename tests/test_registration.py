@@ -13,8 +13,16 @@ from nbvs_drake.config import load_scenario
 from nbvs_drake.mapping.occupancy import OccupancyMap
 from nbvs_drake.motion import ControlSequence, rollout, sample_control_noise, steer
 from nbvs_drake.pose import Correction, state_error
-from nbvs_drake.registration import (KnownSolids, RegistrationConfig, RegistrationModel, ScanView, environment_model,
-                                     motion_prior, region_mask, register_scan)
+from nbvs_drake.registration import (
+    KnownSolids,
+    RegistrationConfig,
+    RegistrationModel,
+    ScanView,
+    environment_model,
+    motion_prior,
+    region_mask,
+    register_scan,
+)
 from nbvs_drake.systems.octree_mapper import OctreeMapper
 
 
@@ -162,6 +170,7 @@ def _localisation_and_mapper(sc, kin, q0):
     """A diagram of Localisation feeding an OctreeMapper (whose map it reads back), with the
     camera's inputs exported: point_cloud, depth_image, controller_status, controls."""
     from pydrake.systems.framework import DiagramBuilder
+
     from nbvs_drake.systems.localisation import Localisation
     b = DiagramBuilder()
     loc = b.AddNamedSystem("localisation", Localisation(sc, kin, q0, 0.1))

@@ -6,11 +6,10 @@ import re
 
 import numpy as np
 import pytest
+from conftest import small_scenario
 
 from nbvs_drake import meshcat_draw, replay, screenshot
 from nbvs_drake.mission import run_mission
-
-from conftest import small_scenario
 
 
 def _small(scans=3):

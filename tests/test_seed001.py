@@ -64,12 +64,12 @@ def test_clusters_and_centroids():
     assert np.all((lab > 0) == u)
 
 
-def _view_near(cls, o, z_near, res=0.1):
+def _view_near(cls, o, z_near, res=0.1, blinds=False):
     return voxel_sorted_views(cls, np.zeros(3), res, np.array([o]), R_X[None], 50.0, 50.0, 49.5, 49.5,
-                              100, 100, z_near, 10.0, 1)[0]
+                              100, 100, z_near, 10.0, 1, blinds)[0]
 
 
-def test_within_the_minimum_range_a_surface_or_unknown_space_blinds_the_rays():
+def test_within_the_minimum_range_a_surface_blinds_the_rays():
     # the camera inside the grid, an unknown block 0.55..0.95 m ahead, minimum range 0.4 m
     o = (0.05, 0.55, 0.55)
     cls = np.full((12, 11, 11), FREE, np.int8)
@@ -81,8 +81,10 @@ def test_within_the_minimum_range_a_surface_or_unknown_space_blinds_the_rays():
     assert tuple(_view_near(wall, o, 0.4)[:2]) == (0, 0)
     assert _view_near(wall, o, 0.1)[0] == 0  # beyond a 0.1 m minimum range it occludes as before
     fog = cls.copy()
-    fog[2, :, :] = UNKNOWN  # unknown space within the minimum range may hold such a surface
-    n_first, n_post, _ = _view_near(fog, o, 0.4)
+    fog[2, :, :] = UNKNOWN  # the conservative rule: unknown space within the minimum range may hold such a surface
+    n_first, n_post, _ = _view_near(fog, o, 0.4, blinds=True)
     assert n_first == 0 and n_post == 0
+    n_first, n_post, _ = _view_near(fog, o, 0.4)  # the default: it is passed through (most likely air)
+    assert n_first >= 25
     n_first, n_post, _ = _view_near(fog, o, 0.1)  # a 0.1 m minimum range: the fog is seen first
     assert n_first > 0

@@ -55,10 +55,11 @@ def test_camera_nearer_than_the_minimum_range_predicts_and_gets_nothing(scene, k
     for a, ev in evaluators.items():
         m = ev.evaluate(omap, np.array(Q_NEAR))[0]
         n_rays = len(ev.dirs)
-        # the known surface (and the unknown space) within the minimum range blinds the rays:
-        # ~no return predicted on the map, no known surface overlapped
-        assert m[K.M_BLIND_RAYS] > 0.5 * n_rays, a
-        assert m[K.M_OC_RAYS] + m[K.M_UN_RAYS] < 0.05 * n_rays, (a, m)
+        # the known surface within the minimum range blinds the rays (about half the image;
+        # the rest sees past the teapot's silhouette into air): ~no return predicted on the
+        # map (on known or new surface), no known surface overlapped
+        assert m[K.M_BLIND_RAYS] > 0.45 * n_rays, a
+        assert m[K.M_OC_RAYS] + m[K.M_NEW_EXPECTED] < 0.02 * n_rays, (a, m)
         assert m[K.M_OC_RAYS] == 0 and m[K.M_OC_O] == 0, (a, m)
     # and the camera returns no object point there
     assert _object_points(sc, omap, renderer, Q_NEAR) < BLIND_SCAN_POINTS
@@ -100,20 +101,23 @@ def test_camera_inside_wbox_next_to_unknown_space_predicts_nothing_behind_it(sce
     X_out = _look_along([1.0, 0.0, 0.55], [-1.0, 0.0, 0.0])  # 0.56 m outside the map
     idx = np.floor((X_in[:3, 3] - omap.spec.bmin) / omap.spec.res).astype(int)
     assert omap.classes()[tuple(idx)] != OCCUPIED and omap.in_wbox()[tuple(idx)]
-    for a, ev in evaluators.items():
+    from nbvs_drake.planning.views import ViewEvaluator
+    conservative = {a: ViewEvaluator(evaluators[0].kin, sc, hrt_a=a, near_unknown_blinds=True) for a in (0, 2)}
+    for a, ev in conservative.items():
         inside, outside = ev.evaluate_poses(omap, np.stack([X_in, X_out]))
-        # the unknown voxels within the minimum range may hold a surface: nothing is predicted
-        # behind them
+        # the conservative rule: the unknown voxels within the minimum range may hold a surface,
+        # so nothing is predicted behind them
         assert inside[K.M_BLIND_RAYS] > 0.9 * len(ev.dirs), a
         for col in (K.M_UN_O, K.M_OC_O, K.M_FIG, K.M_SIG, K.M_N_POSTERIOR, K.M_OC_RAYS, K.M_UN_RAYS, K.M_RSV):
             assert inside[col] < 0.02 * outside[col] + 1e-9 or inside[col] == 0, (a, col, inside[col])
         # from outside the minimum range the same unknown space is seen
         assert outside[K.M_BLIND_RAYS] == 0 and outside[K.M_UN_O] > 100, (a, outside)
-    # where only known surface blinds (near_unknown_blinds False), the unknown space beyond
-    # the minimum range counts from inside too
-    from nbvs_drake.planning.views import ViewEvaluator
-    relaxed = ViewEvaluator(evaluators[0].kin, sc, hrt_a=0, near_unknown_blinds=False)
-    assert relaxed.evaluate_poses(omap, X_in[None])[0][K.M_UN_O] > 20
+    # the default (only known surface blinds: the unknown space near a camera is nearly always
+    # air the early scans have not cleared): the unknown space beyond the minimum range counts
+    # from inside too, and the rays that cross it to the known surface behind are returns on
+    # new surface (expected)
+    relaxed = evaluators[0].evaluate_poses(omap, X_in[None])[0]
+    assert relaxed[K.M_UN_O] > 20 and relaxed[K.M_NEW_EXPECTED] > 0
 
 
 @pytest.mark.parametrize("preset", ["sr4000", "kinect"])

@@ -34,7 +34,8 @@ def test_rrt_finds_a_path_around_a_wall_and_its_controls_reach_the_goal():
     rc = Scenario().robot
     q0 = np.array([-1.0, 0.0, 0.0, 0, 1.2, 0, 0, 0])
     q1 = np.array([1.0, 0.0, np.pi, 0, 1.2, 0, 0, 0])
-    assert not _wall_free(rollout(q0, np.tile([0.3, 0, 0, 0, 0, 0, 0], (67, 1)), rc.control_dt))  # straight line blocked
+    # the straight line is blocked
+    assert not _wall_free(rollout(q0, np.tile([0.3, 0, 0, 0, 0, 0, 0], (67, 1)), rc.control_dt))
     res = rrt_ext_ext(q0, q1, rc, W, _sampler, _wall_free, lambda q: q, np.random.default_rng(0),
                       max_nodes=4000, step=1.5)
     assert res.found
@@ -51,7 +52,8 @@ def test_tree_paths_and_costs():
     b = t.add(a, 2 * np.ones(8), np.zeros((4, 7)), 1.5)
     assert t.path_to(b) == [0, a, b] and t.cost[b] == 3.5 and len(t.controls_to(b)) == 7
     assert t.nearest(np.full(8, 1.9), W) == b
-    assert weighted_dist(np.zeros((1, 8)), np.array([0, 0, 2 * np.pi, 0, 0, 0, 0, 0]), W)[0] == pytest.approx(0, abs=1e-9)
+    full_turn = np.array([0, 0, 2 * np.pi, 0, 0, 0, 0, 0])
+    assert weighted_dist(np.zeros((1, 8)), full_turn, W)[0] == pytest.approx(0, abs=1e-9)
 
 
 def test_nearest_is_the_argmin_of_the_weighted_distance():

@@ -17,7 +17,7 @@ def _entropy(l):
     return -p * math.log(p) - (1 - p) * math.log(1 - p)
 
 
-def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2, unknown_blinds=True):
+def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2, unknown_blinds=True, q=0.0):
     """Reference: voxels along each ray from the camera (t = 0), found by sorting every
     crossing of a voxel boundary plane along the ray in [0, t_far] and sampling each segment
     between consecutive crossings at its middle (exact, where fixed-step sampling misses the
@@ -28,7 +28,8 @@ def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2, unknown_blinds
     dims = np.array(logodds.shape)
     first, posterior, occ, fig_set = set(), set(), set(), set()
     sig = 0.0
-    rsv = oc_rays = un_rays = nrays = blind = 0
+    rsv = oc_rays = un_rays = nrays = blind = new_rays = 0
+    new_exp = 0.0
     for d, tn, tf in zip(dirs, t_near, t_far):
         cuts = [0.0, tf]
         for a in range(3):
@@ -57,9 +58,11 @@ def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2, unknown_blinds
         seq = [seq[n] for n in keep]  # the voxels the ray is in beyond t_near
         nrays += 1
         n_unk = 0
+        hit = False
         for n, v in enumerate(seq):
             lv = logodds[v]
             if lv > L_OCC:
+                hit = True
                 if n_unk <= max_unk:
                     occ.add(v)
                     oc_rays += 1
@@ -73,9 +76,13 @@ def _brute(logodds, bmin, res, o, dirs, t_near, t_far, max_unk=2, unknown_blinds
                 sig += _entropy(lv)
                 fig_set.add(v)
                 (first if n_unk == 1 else posterior).add(v)
+        if n_unk > max_unk:  # crossed unknown space: new surface met (hit) or expected (1 - (1 - q)^n)
+            new_rays += hit
+            new_exp += 1.0 if hit else 1.0 - (1.0 - q) ** n_unk
     return {VM.M_UN_O: len(first), VM.M_OC_O: len(occ), VM.M_FIG: sum(_entropy(logodds[v]) for v in fig_set),
             VM.M_SIG: sig, VM.M_RSV: rsv, VM.M_RAYS: nrays, VM.M_OC_RAYS: oc_rays, VM.M_UN_RAYS: un_rays,
-            VM.M_N_POSTERIOR: len(posterior - first), VM.M_BLIND_RAYS: blind}
+            VM.M_N_POSTERIOR: len(posterior - first), VM.M_BLIND_RAYS: blind, VM.M_NEW_RAYS: new_rays,
+            VM.M_NEW_EXPECTED: new_exp}
 
 
 def _random_map(rng, dims=(9, 8, 7)):
@@ -97,8 +104,10 @@ def test_kernel_matches_brute_force(seed):
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     t_near = np.full(len(dirs), 0.05)
     t_far = np.full(len(dirs), rng.uniform(0.8, 2.0))
-    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
-    ref = _brute(lo, bmin, res, o, dirs, t_near, t_far)
+    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
+                            near_unknown_blinds=True, surface_q=0.07)[0]
+    ref = _brute(lo, bmin, res, o, dirs, t_near, t_far, q=0.07)
+    assert ref[VM.M_NEW_RAYS] > 0 and ref[VM.M_NEW_EXPECTED] > ref[VM.M_NEW_RAYS]  # both kinds of ray occur
     for m, v in ref.items():
         assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
 
@@ -111,7 +120,8 @@ def _one_ray_grid():
 def test_fig_counts_a_voxel_once_per_view_sig_once_per_ray():
     lo, bmin, res, o, d = _one_ray_grid()
     lo[2:5] = 0.0  # three unknown voxels
-    one = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
+    one = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0),
+                          L_FREE, L_OCC, 1)[0]
     two = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], np.repeat(d, 2, 0), np.zeros(2),
                            np.full(2, 10.0), L_FREE, L_OCC, 1)[0]
     assert one[VM.M_FIG] == pytest.approx(3 * math.log(2))
@@ -126,11 +136,13 @@ def test_rsv_only_the_voxel_right_behind_an_occupied_hit():
     lo[2] = 1.2  # occupied
     lo[3] = 0.0  # unknown right behind it
     lo[4] = 0.0
-    m = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
+    m = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0),
+                          L_FREE, L_OCC, 1)[0]
     assert m[VM.M_RSV] == 1 and m[VM.M_OC_O] == 1
     assert m[VM.M_FIG] == 0 and m[VM.M_VUV] == 0  # the ray stops at the occupied voxel
     lo[3] = -1.5  # free behind it: no rear side voxel, even with unknown further back
-    m = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0), L_FREE, L_OCC, 1)[0]
+    m = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], d, np.zeros(1), np.full(1, 10.0),
+                          L_FREE, L_OCC, 1)[0]
     assert m[VM.M_RSV] == 0
 
 
@@ -220,8 +232,10 @@ def test_kernel_matches_brute_force_on_homogeneous_cells(seed):
     dirs = targets - o
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     t_near, t_far = np.full(len(dirs), 0.05), np.full(len(dirs), 3.0)
-    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1)[0]
-    ref = _brute(lo, bmin, res, o, dirs, t_near, t_far)
+    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
+                            near_unknown_blinds=True, surface_q=0.07)[0]
+    ref = _brute(lo, bmin, res, o, dirs, t_near, t_far, q=0.07)
+    assert ref[VM.M_NEW_RAYS] > 0 and ref[VM.M_NEW_EXPECTED] > ref[VM.M_NEW_RAYS]  # both kinds of ray occur
     for m, v in ref.items():
         assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
 
@@ -357,11 +371,14 @@ def test_kernel_matches_brute_force_from_inside_the_grid(seed, unknown_blinds):
     assert hrt[VM.M_BLIND_RAYS] == got[VM.M_BLIND_RAYS]  # the minimum range is exact in HRT
 
 
-def _row(lo, t_near, o=(-0.5, 0.5, 0.5), t_far=10.0, a=0):
+def _row(lo, t_near, o=(-0.5, 0.5, 0.5), t_far=10.0, a=0, blinds=True):
+    """One ray along +x; blinds: the conservative rule (unknown space within the minimum range
+    blinds the ray too)."""
     d = np.array([[1.0, 0.0, 0.0]])
     args = (np.zeros(3), 1.0, np.array([o]), np.eye(3)[None], d, np.full(1, t_near), np.full(1, t_far),
             L_FREE, L_OCC, 1)
-    return VM.evaluate_views_hrt(lo, a, *args)[0] if a else VM.evaluate_views(lo, *args)[0]
+    kw = dict(near_unknown_blinds=blinds)
+    return VM.evaluate_views_hrt(lo, a, *args, **kw)[0] if a else VM.evaluate_views(lo, *args, **kw)[0]
 
 
 @pytest.mark.parametrize("a", [0, 1])
@@ -372,13 +389,17 @@ def test_surface_within_the_minimum_range_blinds_the_ray(a):
     lo[3:] = 0.0  # unknown behind it
     far = _row(lo, 2.4, a=a)  # beyond the minimum range: overlap, as before
     assert far[VM.M_OC_RAYS] == 1 and far[VM.M_OC_O] == 1 and far[VM.M_RAYS] == 1 and far[VM.M_BLIND_RAYS] == 0
-    near = _row(lo, 2.6, a=a)  # the surface is nearer than the minimum range: nothing at all
-    assert near[VM.M_BLIND_RAYS] == 1
-    assert not np.any(np.delete(near, VM.M_BLIND_RAYS)), near
-    # an unknown voxel entered before t_near may hold such a surface: the ray ends there too
+    for blinds in (False, True):  # the surface is nearer than the minimum range: nothing at all
+        near = _row(lo, 2.6, a=a, blinds=blinds)
+        assert near[VM.M_BLIND_RAYS] == 1
+        assert not np.any(np.delete(near, VM.M_BLIND_RAYS)), near
+    # the conservative rule: an unknown voxel entered before t_near may hold such a surface,
+    # so the ray ends there too; by default it is passed through (most likely air)
     lo[2] = 0.0
     near = _row(lo, 2.6, a=a)
     assert near[VM.M_BLIND_RAYS] == 1 and not np.any(np.delete(near, VM.M_BLIND_RAYS))
+    passed = _row(lo, 2.6, a=a, blinds=False)
+    assert passed[VM.M_BLIND_RAYS] == 0 and passed[VM.M_RAYS] == 1 and passed[VM.M_UN_O] == 1
     # free voxels before t_near are passed through; the voxel straddling t_near counts as
     # entered before it
     lo[:] = -1.5
@@ -406,11 +427,16 @@ def test_camera_inside_wbox_next_to_unknown_space_predicts_nothing_behind_it():
     tf = 5.0 / dirs[:, 0]
     R = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # camera +z along world +x
     dcam = dirs @ R  # the same rays in the camera frame
-    met = VM.evaluate_views(lo, np.zeros(3), res, o[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]
+    args = (np.zeros(3), res, o[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)
+    met = VM.evaluate_views(lo, *args, near_unknown_blinds=True)[0]
     assert met[VM.M_BLIND_RAYS] == len(dirs)
     assert met[VM.M_UN_O] == met[VM.M_OC_O] == met[VM.M_FIG] == met[VM.M_OC_RAYS] == met[VM.M_RAYS] == 0
-    hrt = VM.evaluate_views_hrt(lo, 2, np.zeros(3), res, o[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]
+    hrt = VM.evaluate_views_hrt(lo, 2, *args, near_unknown_blinds=True)[0]
     assert hrt[VM.M_BLIND_RAYS] == len(dirs) and hrt[VM.M_UN_O] == hrt[VM.M_FIG] == hrt[VM.M_RAYS] == 0
+    # the default: the unknown space within the minimum range is most likely air; the rays cross
+    # it and the unknown stretch, and meet the known surface behind: returns on new surface
+    met = VM.evaluate_views(lo, *args)[0]
+    assert met[VM.M_BLIND_RAYS] == 0 and met[VM.M_NEW_RAYS] == met[VM.M_NEW_EXPECTED] == len(dirs)
     # 0.7 m back the unknown space lies beyond the minimum range: it is seen
     o2 = np.array([-0.3, 0.2, 0.2])
     met2 = VM.evaluate_views(lo, np.zeros(3), res, o2[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]

@@ -1,4 +1,4 @@
 """Probabilistic occupancy mapping and view evaluation (numba kernels)."""
 
-from .occupancy import OccupancyMap, GridSpec, SensorModel, grid_for_scenario  # noqa: F401
+from .occupancy import GridSpec, OccupancyMap, SensorModel, grid_for_scenario  # noqa: F401
 from .voxel import FREE, OCCUPIED, UNKNOWN, VoxelClass  # noqa: F401

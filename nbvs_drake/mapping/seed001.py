@@ -114,7 +114,7 @@ def _voxel_sorted_one(cls, bmin, res, o, R, fx, fy, cx, cy, w, h, z_near, z_far,
 
 @nb.njit(cache=True, parallel=True)
 def voxel_sorted_views(cls, bmin, res, cam_pos, cam_rot, fx, fy, cx, cy, w, h, z_near, z_far, n_chunks,
-                       near_unknown_blinds=True):
+                       near_unknown_blinds=False):
     """(N, 3) per view: n_first, n_posterior, rays cast. cls: int8 classes (voxel.classes_grid);
     cam_rot columns are the camera axes (+z forward). near_unknown_blinds False: only occupied
     voxels blind a ray within the minimum range."""

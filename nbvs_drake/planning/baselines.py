@@ -61,7 +61,7 @@ def one_at_a_time(candidates, skip):
     """Batches of one for select_best: each candidate (view, q, result or None) as it comes;
     select_best stops at the first feasible one, so a batch it resumes after was not
     feasible under the utility (`skip(view, "unfeasible")`)."""
-    for view, q, res in candidates:
+    for view, _q, res in candidates:
         if res is None:
             skip(view, "no_path")
             yield [], 1
@@ -207,7 +207,6 @@ class ViewCirclePlanner:
         return max(c.nearest(cam), request.omap.scan_count - 1) + 1
 
     def plan(self, request: PlanRequest) -> PlanResult:
-        p = self.sc.planner
         omap, rng = request.omap, request.rng
         c = self.circle()
         times, stages = {}, {}

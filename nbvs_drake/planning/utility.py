@@ -53,7 +53,7 @@ class ExpectedUtilityScore:
         if p.eu_samples < need:
             import warnings
             warnings.warn(f"planner.eu_samples = {p.eu_samples} is below the eq. 18 bound {need} for "
-                          f"alpha = {p.eu_alpha}, gamma = {p.eu_gamma}: collisions may go undetected")
+                          f"alpha = {p.eu_alpha}, gamma = {p.eu_gamma}: collisions may go undetected", stacklevel=2)
 
     def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float,
                       registration: bool = True) -> np.ndarray:
@@ -68,10 +68,11 @@ class ExpectedUtilityScore:
     def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
         """Algorithm 1 for one candidate."""
         p = self.sc.planner
-        skip = self.motion.escape_prefix(cand.states, obstacles) or 0  # the nominal path's escape from a colliding start
+        # the nominal path's escape from a colliding start
+        skip = self.motion.escape_prefix(cand.states, obstacles) or 0
         free = obstacles.free
         if skip:
-            def free(s, m=len(cand.controls)):  # rows: rollouts x states 1..m
+            def free(s, m=len(cand.controls)):  # noqa: B008 - rows: rollouts x states 1..m
                 ok = np.array(obstacles.free(s), bool).reshape(-1, m)
                 ok[:, :skip - 1] = True  # states 1..skip-1 of each rollout
                 return ok.reshape(-1)

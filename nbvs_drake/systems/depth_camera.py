@@ -8,8 +8,14 @@ import dataclasses as dc
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (ClippingRange, DepthRange, DepthRenderCamera, MakeRenderEngineVtk,
-                              RenderCameraCore, RenderEngineVtkParams)
+from pydrake.geometry import (
+    ClippingRange,
+    DepthRange,
+    DepthRenderCamera,
+    MakeRenderEngineVtk,
+    RenderCameraCore,
+    RenderEngineVtkParams,
+)
 from pydrake.math import RigidTransform
 from pydrake.perception import BaseField, DepthImageToPointCloud
 from pydrake.systems.framework import LeafSystem

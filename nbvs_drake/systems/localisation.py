@@ -14,8 +14,16 @@ from ..config import Scenario, resolve_sensor
 from ..mapping.occupancy import OccupancyMap
 from ..motion import ControlSequence
 from ..pose import EXACT_POSE_VAR, Correction
-from ..registration import (KnownSolids, RegistrationConfig, RegistrationModel, ScanView, environment_model,
-                            motion_prior, region_mask, register_scan)
+from ..registration import (
+    KnownSolids,
+    RegistrationConfig,
+    RegistrationModel,
+    ScanView,
+    environment_model,
+    motion_prior,
+    region_mask,
+    register_scan,
+)
 from ..robot import RobotKinematics
 from ..sensor import clean_scan, no_return_rays, ray_directions
 from ..state import NQ

@@ -59,7 +59,8 @@ class NoisyVelocityController(LeafSystem):
         self._x = self.DeclareDiscreteState(x0)
         self._eps = self.DeclareAbstractState(AbstractValue.Make(_Noise(0, np.zeros((0, NU)))))
         self.DeclareVectorOutputPort("velocity", NU, self._calc_u, {self.discrete_state_ticket(self._x)})
-        self.DeclareVectorOutputPort("status", ControllerStatus.SIZE, self._calc_status, {self.discrete_state_ticket(self._x)})
+        self.DeclareVectorOutputPort("status", ControllerStatus.SIZE, self._calc_status,
+                                     {self.discrete_state_ticket(self._x)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(self.dt, 0.0, self._update)
 
     def _update(self, context, state):

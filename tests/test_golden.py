@@ -3,8 +3,9 @@ seed 1 (first four scans) give the same iteration records and summary as when th
 written, apart from wall-clock times. A reorganisation must pass this unchanged; a change
 meant to change the numbers rewrites the files (`.venv/bin/python tests/golden/golden.py`) and says so.
 
-Renamed on purpose since the files were written (golden.RENAMED): plan.factors.sur ->
-plan.factors.info, the information term's one name across strategies."""
+Keys renamed on purpose since the files were written are listed in golden.RENAMED (none now:
+the files were rewritten with the planner's sensor model and overlap, commit 9587274's
+follow-up)."""
 
 import json
 

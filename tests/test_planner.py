@@ -270,3 +270,23 @@ def test_view_sampling_has_no_registration_filter(kin, first_scan_map):
     assert make_planner(sc, kin).overlap_h is None
     sc.planner.strategy = "random_sampling"
     assert make_planner(sc, kin).overlap_h == sc.planner.overlap_h
+
+
+def test_surface_metric_and_overlap_count_the_expected_returns(planner, first_scan_map):
+    """metric "surface" is the share of a view's rays expected on new surface; the overlap
+    counts known-surface rays against those; q is the map's occupied share of seen W_box."""
+    from nbvs_drake.mapping.voxel import FREE, OCCUPIED
+    from nbvs_drake.planning.views import information, surface_probability
+    _, omap = first_scan_map
+    c = omap.classes()[omap.in_wbox()]
+    q = surface_probability(omap)
+    assert q == (c == OCCUPIED).sum() / ((c == OCCUPIED).sum() + (c == FREE).sum()) and 0 < q < 0.2
+    states, _ = planner.generator.generate(np.random.default_rng(5), omap)
+    met = planner.evaluator.evaluate(omap, states[:300])
+    n = len(planner.evaluator.dirs)
+    info = information(met, "surface", omap.unknown_count(), n)
+    np.testing.assert_allclose(info, met[:, K.M_NEW_EXPECTED] / n)
+    assert np.all(met[:, K.M_NEW_EXPECTED] >= met[:, K.M_NEW_RAYS]) and info.max() > 0.01
+    ov = registration_overlap(met)
+    oc, new = met[:, K.M_OC_RAYS], met[:, K.M_NEW_EXPECTED]
+    np.testing.assert_allclose(ov[oc + new > 0], (oc / (oc + new))[oc + new > 0])

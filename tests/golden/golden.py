@@ -62,9 +62,9 @@ def differences(golden, new, path="") -> list[str]:
     return [] if golden == new else [f"{path}: {golden!r} != {new!r}"]
 
 
-#: keys renamed on purpose since the files were written, (parent key, old name) -> new name:
-#: the plan's information term is `info` for every strategy (the metric is named beside it)
-RENAMED = {("factors", "sur"): "info"}
+#: keys renamed on purpose since the files were written, (parent key, old name) -> new name
+#: (e.g. {("factors", "sur"): "info"} while the files predated that rename); none now
+RENAMED: dict = {}
 
 
 def renamed(obj, parent: str = ""):

@@ -14,7 +14,7 @@ import math
 from .errors import ScenarioError
 
 # --------------------------------------------------------------------------------------
-# Dataclasses (defaults = FACTS.md / seed 000 Table 1 and Table 4)
+# Dataclasses (defaults = FACTS.md / Vasquez-Gomez et al. 2017 Table 1 and Table 4)
 # --------------------------------------------------------------------------------------
 
 
@@ -67,7 +67,7 @@ class SceneConfig:
     table_height: float = 0.43  #: top surface z (m)
     bbox_min: list[float] = dc.field(default_factory=lambda: [-0.4, -0.4, 0.43])  #: W_box
     bbox_max: list[float] = dc.field(default_factory=lambda: [0.4, 0.4, 0.95])
-    clutter: str = "none"  #: "none" or "chairs" (nine chairs around the table, seed 000 Fig. 13)
+    clutter: str = "none"  #: "none" or "chairs" (nine chairs around the table, Vasquez-Gomez et al. 2017 Fig. 13)
     object: ObjectConfig = dc.field(default_factory=ObjectConfig)
     gt_points: int = 40000  #: ground-truth surface samples for coverage
 
@@ -98,14 +98,14 @@ SENSOR_PRESETS = {
 
 @dc.dataclass
 class NoiseConfig:
-    """Zero-mean Gaussian control noise (seed 000 §6.1), truncated at +-beta sigma."""
+    """Zero-mean Gaussian control noise (Vasquez-Gomez et al. 2017 §6.1), truncated at +-beta sigma."""
     sigma_v: float = 0.00165  #: m/s (Table 4: 1.65 mm/s)
     sigma_w: float = 0.28  #: rad/s (Table 4)
     sigma_arm: list[float] = dc.field(default_factory=lambda: [0.0] * 5)  #: rad/s
     beta: float = 3.0  #: truncation in units of sigma
     #: False (default): a component commanded 0 (omega while the base stands or drives
     #: straight, v while it turns in place, a still joint) is executed exactly and only
-    #: commanded velocities get noise, as the seeds' own library samples it (vpl
+    #: commanded velocities get noise, as the authors' own library (vpl) samples it (vpl
     #: generateSampleState: "only if the velocity is non-zero we introduce error") and as
     #: Table 4 was measured (sigma_w from rotations in place, sigma_v from straight drives).
     #: True: every component of every control.
@@ -128,7 +128,8 @@ class MapperConfig:
 
 @dc.dataclass
 class PlannerConfig:
-    #: "random_sampling" (seed 000), "ort" (seed 003) or "view_sampling" (seed 001 + IK);
+    #: "random_sampling" (Vasquez-Gomez et al. 2017), "ort" (the ORT paper) or "view_sampling"
+    #: (Santos et al. 2020 + IK);
     #: baselines: "view_circle" (a fixed circle of views around W_box) or "random_views"
     #: (the first random view that looks at W_box and can be reached; no ranking)
     strategy: str = "random_sampling"
@@ -149,7 +150,7 @@ class PlannerConfig:
     #: cross unknown space to known surface, plus those that cross it and leave, weighted by the
     #: chance their unknown stretch holds surface; docs/decisions.md says how it compares)
     metric: str = "sur"
-    ort_vertices: int = 10000  #: ORT tree size k (seed 003: 10^4 is the good trade-off)
+    ort_vertices: int = 10000  #: ORT tree size k (the ORT paper: 10^4 is the good trade-off)
     tree_step: float = 1.0  #: tree extension step in the weighted metric of eq. 8
     #: RRT Ext-Ext nodes when no direct steering path reaches a candidate (Table 1: 10^4);
     #: 0: direct steering paths only
@@ -161,7 +162,7 @@ class PlannerConfig:
         default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     use_distance: bool = True
     #: "du": deterministic utility g = pos reg sur dist; "eu": expected utility under the
-    #: scenario's control noise (seed 000 Algorithm 1) over the candidates with a path
+    #: scenario's control noise (Vasquez-Gomez et al. 2017 Algorithm 1) over the candidates with a path
     utility: str = "du"
     eu_samples: int = 500  #: k rollouts per candidate (Table 7: 500)
     #: how the k rollouts' utilities are combined: "probability" (Algorithm 1 lines 10-12:
@@ -175,7 +176,7 @@ class PlannerConfig:
     #: W_box or its unknown voxels) before a candidate is unfeasible; colliding rollouts
     #: count with g = 0. 0: any collision rules the candidate out (Algorithm 1, line 7)
     eu_max_collision_rate: float = 0.0
-    #: whether each rollout's utility keeps reg(x) (seed 000's g = pos reg sur dist at the
+    #: whether each rollout's utility keeps reg(x) (Vasquez-Gomez et al. 2017's g = pos reg sur dist at the
     #: reached state) or only the candidate itself must pass the registration filter. False
     #: suits re-localisation that also matches the known environment (mission.relocalization:
     #: icp registers against the table too), so a rollout that drifts off the object is
@@ -188,7 +189,7 @@ class PlannerConfig:
     map_obstacles: str = "wbox"
     max_obstacle_boxes: int = 300
     ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
-    #: hierarchical ray tracing resolution parameter a (seed 000 §5.4): 0 = uniform ray
+    #: hierarchical ray tracing resolution parameter a (Vasquez-Gomez et al. 2017 §5.4): 0 = uniform ray
     #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
     hrt_a: int = 0
     #: candidates' director ray must enter W_box within this distance (m): the working range
@@ -210,14 +211,14 @@ class MissionConfig:
     #: model the next scans register against; the pose uncertainty carries over to the next
     #: registration's prior
     skip_unregistered_scans: bool = True
-    #: after a collision of the executed motion: "stop" the run (the seeds' robot
+    #: after a collision of the executed motion: "stop" the run (the papers' robot
     #: experiments) or "continue" (the collision is counted)
     on_collision: str = "stop"
-    #: stop when the unknown voxels of W_box fall below this many (0: off; the seeds'
+    #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0
     #: stop when the best candidate's information term (sur, or the chosen metric) is below
-    #: this (seed 000 §7.5; 0: off)
+    #: this (Vasquez-Gomez et al. 2017 §7.5; 0: off)
     stop_min_surface: float = 0.0
     #: stop when the best candidate's utility g (or expected utility) is below this (0: off)
     stop_min_utility: float = 0.0

@@ -1,5 +1,5 @@
-"""Evaluation of a reconstruction: coverage against ground-truth surface samples (seed 000
-§8, seed 003: share of ground-truth points within a threshold of a model point)."""
+"""Evaluation of a reconstruction: coverage against ground-truth surface samples (Vasquez-Gomez et al. 2017
+§8, the ORT paper: share of ground-truth points within a threshold of a model point)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Motion model of seed 000 §6: velocity controls u = [v, w_b, w_1..w_5] held for dt, Euler
+"""Motion model of Vasquez-Gomez et al. 2017 §6: velocity controls u = [v, w_b, w_1..w_5] held for dt, Euler
 integration of the non-holonomic base, truncated Gaussian control noise; the steering
 function that turns a start/goal pair into controls; the weighted path length (eq. 8)."""
 
@@ -41,7 +41,7 @@ class ControlSequence:
 
 def euler_step(q: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
     """x_t = x + v cos(theta) dt, y_t = y + v sin(theta) dt, theta_t = theta + w_b dt,
-    q_i,t = q_i + w_i dt (seed 000 §6.2). Broadcasts over leading dimensions."""
+    q_i,t = q_i + w_i dt (Vasquez-Gomez et al. 2017 §6.2). Broadcasts over leading dimensions."""
     q = np.asarray(q, float)
     u = np.asarray(u, float)
     out = np.array(q, copy=True)

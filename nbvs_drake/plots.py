@@ -46,7 +46,7 @@ def _xy(states):
 
 def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_error: float = 0.002,
                collision: dict | None = None):
-    """Top view (x, y) of a run, after seed 000 Fig. 17: the table, W_box and the other known
+    """Top view (x, y) of a run, after Vasquez-Gomez et al. 2017 Fig. 17: the table, W_box and the other known
     obstacles (cluttered_room's chairs; their names are returned), per iteration
     the planned base path (dashed; the plan made after scan k) and the executed true path
     (solid; the motion that ended at scan k + 1) in one colour, the true base pose at each
@@ -173,7 +173,7 @@ def carry_forward(per_run: list[list[float]]) -> np.ndarray:
 
 def draw_coverage_by_scenario(ax, series: dict[str, list[list[float]]], title: str = ""):
     """Draws on `ax` the mean coverage per scan over each scenario's runs (series: scenario
-    -> per run its coverage_by_scan), +- one standard deviation (seed 000 Fig. 12); runs that
+    -> per run its coverage_by_scan), +- one standard deviation (Vasquez-Gomez et al. 2017 Fig. 12); runs that
     stopped early count with their last coverage (the legend says how many stopped)."""
     for name, per_run in series.items():
         a = 100 * carry_forward(per_run)

@@ -1,4 +1,4 @@
-"""Scan registration and re-localisation (seed 000 §1, seed 003 Algorithm 1).
+"""Scan registration and re-localisation (Vasquez-Gomez et al. 2017 §1, the ORT paper Algorithm 1).
 
 Each new scan arrives in the world frame at the *believed* camera pose. `register_scan`
 aligns it with the model accumulated from the earlier (corrected) scans by a planar

@@ -41,7 +41,7 @@ def environment_boxes(sc: Scenario) -> list[Box]:
 
 
 def chair_boxes(sc: Scenario) -> list[Box]:
-    """Nine chairs on a ring around the table (seed 000 Fig. 13): seat + backrest each, in ten
+    """Nine chairs on a ring around the table (Vasquez-Gomez et al. 2017 Fig. 13): seat + backrest each, in ten
     slots 36 deg apart with the slot on the -x side (where the robot starts) left open."""
     out = []
     r = 1.25

@@ -8,7 +8,7 @@ from nbvs_drake.planning.expected_utility import expected_utility, sample_count_
 
 
 def test_eq18_sample_bound():
-    assert sample_count_bound(0.01, 0.05, 1 / 0.997) == 90  # seed 000 §7.3
+    assert sample_count_bound(0.01, 0.05, 1 / 0.997) == 90  # Vasquez-Gomez et al. 2017 §7.3
     assert sample_count_bound(0.01, 0.5) < sample_count_bound(0.01, 0.05) < sample_count_bound(0.001, 0.05)
     with pytest.raises(ValueError):
         sample_count_bound(0.01, 1.2)

@@ -79,7 +79,7 @@ def test_noise_sigmas_layout():
 
 
 def test_a_component_commanded_zero_is_executed_exactly():
-    """The seeds' library perturbs only non-zero velocities: driving straight (omega = 0)
+    """The authors' library (vpl) perturbs only non-zero velocities: driving straight (omega = 0)
     keeps the heading, a turn in place (v = 0) keeps the position, and the rest of the plan
     gets the same draws as with every component perturbed."""
     tau = _plan(m=30)

@@ -101,7 +101,7 @@ def test_ort_returns_a_vertex_at_least_as_good_as_the_roots_children(kin, first_
 
 
 def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
-    from nbvs_drake.mapping.seed001 import unknown_clusters
+    from nbvs_drake.mapping.voxel_sorting import unknown_clusters
     from nbvs_drake.planning import PlanRequest, make_planner
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)

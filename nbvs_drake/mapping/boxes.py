@@ -2,7 +2,7 @@
 
 SceneGraph's proximity registration grows super-linearly with the number of geometries
 (FACTS.md: a thousand boxes take minutes), so the map's obstacle voxels (unknown and
-occupied, seed 000 §3) are merged into at most a few hundred axis-aligned boxes. A cover is
+occupied, Vasquez-Gomez et al. 2017 §3) are merged into at most a few hundred axis-aligned boxes. A cover is
 conservative: every obstacle voxel lies in a box. When exact greedy merging needs more boxes
 than allowed, the voxels are grouped into 2x2x2 blocks (any obstacle voxel makes the block an
 obstacle) and merged again, coarser each time.

@@ -2,7 +2,7 @@
 
 `evaluate_views` traces every ray voxel by voxel (exact DDA, walking the 4 x 4 x 4 cell
 bitmasks of mapping.cells); `evaluate_views_hrt` is the approximate hierarchical ray tracing
-of seed 000 §5.4 (one ray per pixel block over level-a cells, refined where classes mix).
+of Vasquez-Gomez et al. 2017 §5.4 (one ray per pixel block over level-a cells, refined where classes mix).
 Both return one row of N_METRICS per view, columns M_*.
 
 The sensor model is the camera's (sensor.ray_directions: its pixel grid and field of view,
@@ -45,7 +45,7 @@ M_RSV = 4  #: rays that hit an occupied voxel whose next voxel along the ray is 
 M_RAYS = 5  #: rays that reach the map within the sensor's range and are not blinded (M_BLIND_RAYS)
 M_OC_RAYS = 6  #: rays whose first non-free voxel is occupied (the scan lands on known surface)
 M_UN_RAYS = 7  #: rays whose first non-free voxel is unknown
-M_N_POSTERIOR = 8  #: seed 001 n_posterior: distinct unknown voxels touched only behind another unknown voxel
+M_N_POSTERIOR = 8  #: Santos et al. 2020 n_posterior: distinct unknown voxels touched only behind another unknown voxel
 #: rays that enter the map but meet an occupied or unknown voxel within the minimum range
 #: (before t_near): they return nothing and count in no other column
 M_BLIND_RAYS = 9
@@ -59,7 +59,7 @@ M_NEW_RAYS = 10
 #: unknown voxel holds surface (`surface_q`; ViewEvaluator estimates it from the map)
 M_NEW_EXPECTED = 11
 N_METRICS = 12
-M_VUV = M_UN_O  #: seed 003 VUV
+M_VUV = M_UN_O  #: the ORT paper VUV
 
 
 @nb.njit(cache=True, inline="always")
@@ -358,7 +358,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
 
 
 # --------------------------------------------------------------------------------------
-# Hierarchical ray tracing (seed 000 §5.4)
+# Hierarchical ray tracing (Vasquez-Gomez et al. 2017 §5.4)
 # --------------------------------------------------------------------------------------
 
 
@@ -551,7 +551,7 @@ def _evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_nea
 
 def evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                        n_chunks, max_unknown_before_hit=2, width=None, near_unknown_blinds=False, surface_q=0.0):
-    """evaluate_views with hierarchical ray tracing at resolution parameter a >= 1 (seed 000
+    """evaluate_views with hierarchical ray tracing at resolution parameter a >= 1 (Vasquez-Gomez et al. 2017
     §5.4): rays are traced in the level-a map (cells of 2^a x 2^a x 2^a voxels) and only one ray
     per 2^a x 2^a pixel block is traced, standing for the block's rays (per-ray metrics: SIG,
     RSV, ray counts are weighted by the block's size); cells with an occupied voxel or mixed

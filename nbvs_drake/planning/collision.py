@@ -16,7 +16,7 @@ class CollisionModel:
     object_obj: the true object (for detecting real collisions of the executed motion)
     instead of the planner's conservative W_box obstacle.
     obstacle_boxes: (centre, size) boxes standing for the unknown and occupied space of the
-    map (seed 000 §3: O = W_obj u W_unk u O_env) instead of the whole W_box.
+    map (Vasquez-Gomez et al. 2017 §3: O = W_obj u W_unk u O_env) instead of the whole W_box.
     """
 
     def __init__(self, sc: Scenario, kin: RobotKinematics, *, object_obj: str | None = None,

@@ -1,4 +1,4 @@
-"""Expected utility under noisy controls (seed 000 §7.2, Algorithm 1) and the sample-count
+"""Expected utility under noisy controls (Vasquez-Gomez et al. 2017 §7.2, Algorithm 1) and the sample-count
 bound of §7.3 (eq. 18).
 
 k rollouts of the motion model the NoisyVelocityController executes (Euler integration of

@@ -1,6 +1,6 @@
 """Trees in the robot's state space whose edges are exact control sequences: RRT Ext-Ext
-(bidirectional, seed 000 §7.4) from the current state to a candidate, and the growth step
-shared with the Object Reconstruction Tree (seed 003).
+(bidirectional, Vasquez-Gomez et al. 2017 §7.4) from the current state to a candidate, and the growth step
+shared with the Object Reconstruction Tree (the ORT paper).
 
 An edge from a to b is the steering function's 'together' controls (turn-drive-turn of the
 base with the arm moving alongside), so the controls of a tree path, replayed by the Euler

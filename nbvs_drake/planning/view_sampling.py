@@ -12,7 +12,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..mapping.seed001 import unknown_clusters
+from ..mapping.voxel_sorting import unknown_clusters
 from ..robot import CAMERA_BODY, RobotKinematics
 from ..state import NQ
 from .candidates import StateSampler

@@ -46,9 +46,9 @@ class ViewEvaluator:
         X = self.kin.camera_poses(q)
         return self.evaluate_poses(omap, X)
 
-    def seed001_score(self, omap: OccupancyMap, q: np.ndarray, w: float = 0.5) -> np.ndarray:
-        """Seed 001's score of states q (voxel-sorted ray casting), within the sensor's range."""
-        from ..mapping import seed001
+    def voxel_sorting_score(self, omap: OccupancyMap, q: np.ndarray, w: float = 0.5) -> np.ndarray:
+        """Santos et al. 2020's score of states q (voxel-sorted ray casting), within the sensor's range."""
+        from ..mapping import voxel_sorting
         from ..sensor import intrinsics
         q = np.atleast_2d(q)
         if len(q) == 0:
@@ -58,17 +58,17 @@ class ViewEvaluator:
         cls = classes_grid(np.ascontiguousarray(omap.logodds, dtype=np.float32), m.l_free, m.l_occ)
         wd, ht, fx, fy, cx, cy = intrinsics(self.sensor)
         s = resolve_sensor(self.sensor)
-        res = seed001.voxel_sorted_views(cls, omap.spec.bmin.astype(np.float64), omap.spec.res,
+        res = voxel_sorting.voxel_sorted_views(cls, omap.spec.bmin.astype(np.float64), omap.spec.res,
                                          np.ascontiguousarray(X[:, :3, 3]), np.ascontiguousarray(X[:, :3, :3]),
                                          fx, fy, cx, cy, wd, ht, s.z_near, s.z_far, min(self.n_chunks, len(q)),
                                          self.near_unknown_blinds)
-        outer, inner = seed001.unknown_volumes(cls == UNKNOWN, omap.spec.res)
-        return seed001.score(res[:, 0], res[:, 1], omap.spec.res, outer, inner, w)
+        outer, inner = voxel_sorting.unknown_volumes(cls == UNKNOWN, omap.spec.res)
+        return voxel_sorting.score(res[:, 0], res[:, 1], omap.spec.res, outer, inner, w)
 
     def information(self, omap: OccupancyMap, q: np.ndarray, met: np.ndarray, metric: str, un_total: int):
         """The information term of states q whose ray metrics are `met`."""
         if metric == "seed001":
-            return self.seed001_score(omap, q)
+            return self.voxel_sorting_score(omap, q)
         return information(met, metric, un_total, len(self.dirs))
 
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
@@ -115,7 +115,7 @@ def information(met: np.ndarray, metric: str, un_total: int, n_rays: int = 1) ->
     metrics also by ln 2, a voxel's maximum entropy): sur = VUV = un_o (Vasquez-Gomez et al.
     2017 eq. 6), fig, sig, rsv (the ORT paper); "surface": the share of the view's `n_rays`
     rays expected to return on new surface (view_metrics.M_NEW_EXPECTED). seed001: see
-    ViewEvaluator.seed001_score."""
+    ViewEvaluator.voxel_sorting_score."""
     if metric == "surface":
         return met[:, K.M_NEW_EXPECTED] / max(n_rays, 1)
     col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]

@@ -11,7 +11,7 @@ from ..state import NQ, NU
 
 
 class KinematicPlant(LeafSystem):
-    """Euler integration of seed 000 §6.2 every `dt`: x += v cos(theta) dt, y += v sin(theta) dt,
+    """Euler integration of Vasquez-Gomez et al. 2017 §6.2 every `dt`: x += v cos(theta) dt, y += v sin(theta) dt,
     theta += w_b dt, q_i += w_i dt (non-holonomic base, velocity-controlled arm).
 
     Input ports:

@@ -34,7 +34,7 @@ def plan_noise(seed: int, plan_id: int, controls: np.ndarray, noise: NoiseConfig
 
 class NoisyVelocityController(LeafSystem):
     """Replays tau = {u_1..u_m}, each u held for dt, adding zero-mean Gaussian noise truncated
-    to [-beta sigma, beta sigma] per component (seed 000 §6.1: sigma_v, sigma_w on the base,
+    to [-beta sigma, beta sigma] per component (Vasquez-Gomez et al. 2017 §6.1: sigma_v, sigma_w on the base,
     sigma_arm per joint); a component commanded 0 is exact unless
     `noise.perturb_zero_commands`. A new plan (larger plan_id on the input) starts at the next tick;
     zero sigmas reproduce the plan exactly.

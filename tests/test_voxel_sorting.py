@@ -1,9 +1,9 @@
-"""Seed 001's voxel-sorted ray casting, score and unknown-voxel clusters."""
+"""Santos et al. 2020's voxel-sorted ray casting, score and unknown-voxel clusters."""
 import numpy as np
 import pytest
 
-from nbvs_drake.mapping.seed001 import score, unknown_clusters, unknown_volumes, voxel_sorted_views
 from nbvs_drake.mapping.voxel import FREE, OCCUPIED, UNKNOWN
+from nbvs_drake.mapping.voxel_sorting import score, unknown_clusters, unknown_volumes, voxel_sorted_views
 
 R_X = np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)  # camera +z along world +x
 

@@ -1,4 +1,4 @@
-"""Seed 001 (Santos et al. 2020): voxel-sorted ray casting (§3.5, Algorithm 1), its pose score
+"""Santos et al. 2020 (Santos et al. 2020): voxel-sorted ray casting (§3.5, Algorithm 1), its pose score
 (§3.6) and the clusters of unknown voxels with their centroids (§3.2) used by its view
 sampling.
 
@@ -153,7 +153,7 @@ def score(n_first, n_posterior, res: float, v_outer: float, v_inner: float, w: f
 
 
 def unknown_clusters(unknown: np.ndarray, centers: np.ndarray, link: float = 2.05):
-    """Clusters of unknown voxels linked to a neighbour at most `link` voxels away (seed 001:
+    """Clusters of unknown voxels linked to a neighbour at most `link` voxels away (Santos et al. 2020:
     just over twice the resolution), measured per axis (Chebyshev distance, so diagonal
     neighbours up to 2 voxels per axis link too). Returns (labels (same shape, 0 = none),
     centroids (n, 3) in metres, sizes (n,))."""

@@ -191,11 +191,12 @@ def test_rollout_utility_with_and_without_the_registration_factor(planner, first
     q, _ = planner.generator.generate(np.random.default_rng(3), omap)  # states that look at W_box
     q = q[planner.obstacles.for_map(omap).free(q)][:400]
     un_total = omap.unknown_count()
-    eu = ExpectedUtilityScore(sc, planner.evaluator, planner.motion, sc.planner.overlap_h)
+    h = 0.3  # the noisy scenarios' h (the default scenario, without noise, needs no overlap)
+    eu = ExpectedUtilityScore(sc, planner.evaluator, planner.motion, h)
     with_reg = eu.state_utility(omap, q, un_total, 0.5)
     without = eu.state_utility(omap, q, un_total, 0.5, registration=False)
     met = planner.evaluator.evaluate(omap, q)
-    passes = registration_overlap(met) > sc.planner.overlap_h
+    passes = registration_overlap(met) > h
     sur = planner.evaluator.information(omap, q, met, sc.planner.metric, un_total)
     np.testing.assert_allclose(without, 0.5 * sur)
     np.testing.assert_allclose(with_reg, np.where(passes, 0.5 * sur, 0.0))

@@ -220,7 +220,8 @@ def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(q0, covariance=np.diag([1e-4, 1e-4, 0.2 ** 2])))
     rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
     assert rep["status"] == "ok" and rep["start_sigma"] == pytest.approx([0.01, 0.01, 0.2])
-    assert rep["factors"]["eu"]["g_std"] > 0 and rep["utility"] < rep["factors"]["du"]
+    # the rollouts' final states spread: their utilities vary, and their mean is not the DU
+    assert rep["factors"]["eu"]["g_std"] > 0 and rep["utility"] != pytest.approx(rep["factors"]["du"], rel=1e-6)
     # a zero covariance (the last scan registered) is an exact start: EU = DU
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(q0))
     rep = sys_.GetOutputPort("report").Eval(ctx).to_json()
@@ -237,6 +238,7 @@ def test_no_view_feasible_under_the_noise_stops_the_run_and_says_why(kin, first_
     sc.planner.utility = "eu"
     sc.planner.eu_samples = 100
     sc.planner.eu_max_collision_rate = 0.0
+    sc.planner.overlap_h = 0.3  # the noisy scenarios' registration filter
     sc.noise.sigma_v, sc.noise.sigma_w = 1.0, 4.0
     pl = make_planner(sc, kin)
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(sc.robot.start))

@@ -131,10 +131,13 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     if halted:  # the trajectory that collided never reached a scan: keep it here
         kplant = md.systems["kinematic_plant"]
         q_stop = kplant.GetOutputPort("state").Eval(kplant.GetMyContextFromRoot(ctx))
+        # the state the monitor found in contact (the plant has moved one control step on since)
+        q_hit = monitor_sys.GetOutputPort("collision_state").Eval(monitor_sys.GetMyContextFromRoot(ctx))
         collision = {"trajectory": executed, "t_sim": round(halted["t"], 3),
                      "true_state": [round(float(v), 6) for v in q_stop],
+                     "contact_state": [round(float(v), 6) for v in q_hit],
                      "executed_path": rec.unfinished_path(),
-                     "contacts": monitor_sys.truth.contacts(q_stop)}
+                     "contacts": monitor_sys.truth.contacts(q_hit)}
     summary = {
         "scenario": sc.name,
         "seed": sc.seed,

@@ -6,6 +6,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..planning.collision import CollisionModel
+from ..state import NQ
 from .messages import ControllerStatus
 
 
@@ -19,7 +20,10 @@ class CollisionMonitor(LeafSystem):
       - controller_status (3): `ControllerStatus`.
     Output ports:
       - counts (3): [collided trajectories, executed trajectories, in collision now].
-    State: discrete [collided, executed, last plan_id, current trajectory collided, now].
+      - collision_state (8): the true state at which the last collision began (the state the
+        check found in contact; the plant has moved one step on when the run stops).
+    State: discrete [collided, executed, last plan_id, current trajectory collided, now]; the
+    state at the last collision's start (8).
     """
 
     def __init__(self, truth: CollisionModel, dt: float):
@@ -28,7 +32,9 @@ class CollisionMonitor(LeafSystem):
         self._q = self.DeclareVectorInputPort("state", 8)
         self._status = self.DeclareVectorInputPort("controller_status", ControllerStatus.SIZE)
         self._x = self.DeclareDiscreteState(np.zeros(5))
+        self._hit = self.DeclareDiscreteState(np.zeros(NQ))
         self.DeclareVectorOutputPort("counts", 3, self._calc, {self.discrete_state_ticket(self._x)})
+        self.DeclareStateOutputPort("collision_state", self._hit)
         self.DeclarePeriodicDiscreteUpdateEvent(dt, 0.0, self._update)
 
     def _update(self, context, discrete_state):
@@ -39,11 +45,13 @@ class CollisionMonitor(LeafSystem):
             last_plan = status.plan_id
             cur = 0.0
         now = 0.0
+        q = self._q.Eval(context)
         if not status.idle or cur > 0:  # only motion can cause new contact
-            now = 0.0 if self.truth.free(self._q.Eval(context))[0] else 1.0
+            now = 0.0 if self.truth.free(q)[0] else 1.0
         if now and not cur and last_plan > 0:
             cur = 1.0
             collided += 1
+            discrete_state.get_mutable_vector(self._hit).SetFromVector(q)
         discrete_state.get_mutable_vector(self._x).SetFromVector([collided, executed, last_plan, cur, now])
 
     def _calc(self, context, output: BasicVector):

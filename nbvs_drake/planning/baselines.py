@@ -29,11 +29,12 @@ from ..config import Scenario, resolve_sensor
 from ..mapping import view_metrics as K
 from ..mapping.occupancy import OccupancyMap
 from ..motion import path_length, wrap_angle
-from ..robot import CAMERA_BODY, RobotKinematics
-from .candidates import StateSampler
+from ..robot import RobotKinematics
+from .candidates import StateSampler, free_candidates
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
 from .utility import select_best
+from .view_sampling import camera_ik
 from .views import ViewEvaluator, registration_overlap
 
 
@@ -178,23 +179,10 @@ class ViewCirclePlanner:
     def _ik(self, p: np.ndarray, look: np.ndarray, guess: np.ndarray) -> np.ndarray | None:
         """A state whose camera is at p (within pos_tol) with its optical axis along `look`
         (within angle_tol), roll free, within the joint limits and the base bounds; or None."""
-        from pydrake.multibody.inverse_kinematics import InverseKinematics
-        from pydrake.solvers import Solve
-        plant = self.kin.plant
-        cam = plant.GetBodyByName(CAMERA_BODY).body_frame()
-        ik = InverseKinematics(plant)
-        ik.AddPositionConstraint(cam, np.zeros(3), plant.world_frame(), p - self.pos_tol, p + self.pos_tol)
-        ik.AddAngleBetweenVectorsConstraint(cam, np.array([0.0, 0.0, 1.0]), plant.world_frame(), look,
-                                            0.0, self.angle_tol)
-        q = ik.q()
-        lo, hi = self.sc.robot.xy_bounds
-        for a in (0, 1):
-            ik.prog().AddBoundingBoxConstraint(lo, hi, q[self.kin.q_index[a]])
-        ik.prog().SetInitialGuess(q, self.kin.to_positions(guess))
-        res = Solve(ik.prog())
-        if not res.is_success():
+        x = camera_ik(self.kin, p, look, guess, self.sc.robot.xy_bounds, self.pos_tol, self.angle_tol)
+        if x is None:
             return None
-        x = np.array(res.GetSolution(q)[self.kin.q_index], float)
+        x = np.array(x, float)
         x[2] = float(wrap_angle(x[2]))
         return self.kin.clip_arm(x)
 
@@ -274,15 +262,7 @@ class RandomViewsPlanner:
         times, stages = {}, {}
         obstacles: ObstacleModel = self.obstacles.for_map(omap)
         stages.update(obstacles.stats)
-        t = time.perf_counter()
-        cand, raw = self.sampler.generate(rng, omap)
-        stages["sampled"] = raw
-        stages["director_ray"] = len(cand)
-        times["generate_s"] = time.perf_counter() - t
-        t = time.perf_counter()
-        cand = cand[obstacles.free(cand)]
-        stages["position"] = len(cand)
-        times["position_s"] = time.perf_counter() - t
+        cand = free_candidates(self.sampler, obstacles, rng, omap, stages, times)
         if len(cand) == 0:
             return PlanResult("no_candidate", stages=stages, times=times)
         un_total = max(omap.unknown_count(), 1)

@@ -62,3 +62,22 @@ class StateSampler:
         while True:
             batch = self.sample_states(rng, 4096)
             yield from batch[self.looks_at_wbox(batch)]
+
+
+def free_candidates(generator, obstacles, rng: np.random.Generator, omap: OccupancyMap, stages: dict,
+                    times: dict) -> np.ndarray:
+    """Candidate generation and the position filter (Vasquez-Gomez et al. 2017 §7.6 steps
+    1-2): the generator's states (`generate(rng, omap) -> (states, raw samples)`) that are
+    free of the plan's obstacles. Fills stages (sampled, director_ray, position) and times
+    (generate_s, position_s)."""
+    import time
+    t = time.perf_counter()
+    cand, raw = generator.generate(rng, omap)
+    stages["sampled"] = raw
+    stages["director_ray"] = len(cand)
+    times["generate_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    cand = cand[obstacles.free(cand)]
+    stages["position"] = len(cand)
+    times["position_s"] = time.perf_counter() - t
+    return cand

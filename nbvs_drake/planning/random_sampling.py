@@ -14,6 +14,7 @@ import numpy as np
 from ..config import Scenario
 from ..mapping import view_metrics as K
 from ..motion import path_length
+from .candidates import free_candidates
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
 from .utility import select_best
@@ -42,16 +43,7 @@ class RandomSamplingPlanner:
         times, stages = {}, {}
         obstacles: ObstacleModel = self.obstacles.for_map(omap)
         stages.update(obstacles.stats)
-        t = time.perf_counter()
-        cand, raw = self.generator.generate(rng, omap)
-        stages["sampled"] = raw
-        stages["director_ray"] = len(cand)
-        times["generate_s"] = time.perf_counter() - t
-
-        t = time.perf_counter()
-        cand = cand[obstacles.free(cand)]
-        stages["position"] = len(cand)
-        times["position_s"] = time.perf_counter() - t
+        cand = free_candidates(self.generator, obstacles, rng, omap, stages, times)
 
         t = time.perf_counter()
         met = self.evaluator.evaluate(omap, cand)

@@ -18,6 +18,29 @@ from ..state import NQ
 from .candidates import StateSampler
 
 
+def camera_ik(kin: RobotKinematics, p: np.ndarray, look: np.ndarray, guess: np.ndarray, xy_bounds,
+              pos_tol: float, angle_tol: float) -> np.ndarray | None:
+    """Drake InverseKinematics: a robot state whose camera is at p (within pos_tol per
+    coordinate) with its optical axis along `look` (within angle_tol), roll free, within the
+    joint limits and the base bounds `xy_bounds`, from the initial guess; None if it fails."""
+    from pydrake.multibody.inverse_kinematics import InverseKinematics
+    from pydrake.solvers import Solve
+    plant = kin.plant
+    cam = plant.GetBodyByName(CAMERA_BODY).body_frame()
+    ik = InverseKinematics(plant)
+    ik.AddPositionConstraint(cam, np.zeros(3), plant.world_frame(), p - pos_tol, p + pos_tol)
+    ik.AddAngleBetweenVectorsConstraint(cam, np.array([0.0, 0.0, 1.0]), plant.world_frame(), look, 0.0, angle_tol)
+    q = ik.q()
+    lo, hi = xy_bounds
+    for a in (0, 1):
+        ik.prog().AddBoundingBoxConstraint(lo, hi, q[kin.q_index[a]])
+    ik.prog().SetInitialGuess(q, kin.to_positions(guess))
+    res = Solve(ik.prog())
+    if not res.is_success():
+        return None
+    return res.GetSolution(q)[kin.q_index]
+
+
 class ClusterViewGenerator:
     pos_tol = 0.01
     angle_tol = np.radians(5.0)
@@ -29,23 +52,7 @@ class ClusterViewGenerator:
 
     def _ik(self, p: np.ndarray, look: np.ndarray, guess: np.ndarray):
         """A state whose camera is at p looking along `look`, or None."""
-        from pydrake.multibody.inverse_kinematics import InverseKinematics
-        from pydrake.solvers import Solve
-        plant = self.kin.plant
-        cam = plant.GetBodyByName(CAMERA_BODY).body_frame()
-        ik = InverseKinematics(plant)
-        ik.AddPositionConstraint(cam, np.zeros(3), plant.world_frame(), p - self.pos_tol, p + self.pos_tol)
-        ik.AddAngleBetweenVectorsConstraint(cam, np.array([0.0, 0.0, 1.0]), plant.world_frame(), look,
-                                            0.0, self.angle_tol)
-        q = ik.q()
-        lo, hi = self.sc.robot.xy_bounds
-        for a in (0, 1):
-            ik.prog().AddBoundingBoxConstraint(lo, hi, q[self.kin.q_index[a]])
-        ik.prog().SetInitialGuess(q, self.kin.to_positions(guess))
-        res = Solve(ik.prog())
-        if not res.is_success():
-            return None
-        return res.GetSolution(q)[self.kin.q_index]
+        return camera_ik(self.kin, p, look, guess, self.sc.robot.xy_bounds, self.pos_tol, self.angle_tol)
 
     def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
         p = self.sc.planner

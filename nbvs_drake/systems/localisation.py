@@ -31,15 +31,15 @@ from .messages import Belief, ControllerStatus, RegisteredScan
 
 
 class _Memory:
-    """Immutable state: the belief, the plan it last predicted from, the last plan scanned, the
-    pose covariance no registration has removed yet, the registration model, the last scan."""
+    """Immutable state: the belief (its covariance: the pose spread no registration has removed
+    yet), the plan it last predicted from, the last plan scanned, the registration model, the
+    last scan."""
 
-    def __init__(self, belief: Belief, predicted_plan: int, scanned_plan: int, pending: np.ndarray,
-                 model: RegistrationModel, last_scan: RegisteredScan):
+    def __init__(self, belief: Belief, predicted_plan: int, scanned_plan: int, model: RegistrationModel,
+                 last_scan: RegisteredScan):
         self.belief = belief
         self.predicted_plan = predicted_plan
         self.scanned_plan = scanned_plan
-        self.pending = pending
         self.model = model
         self.last_scan = last_scan
 
@@ -87,7 +87,7 @@ class Localisation(LeafSystem):
         computed when the scan is due, so the mapper integrates it at the same tick.
       - belief (abstract Belief): scan index, dead-reckoned and corrected state, covariance.
       - believed_state (8): the believed state (for the believed camera pose).
-    State: abstract (belief, registration model, last scan, pending covariance).
+    State: abstract (belief with its covariance, registration model, last scan).
     """
 
     def __init__(self, sc: Scenario, kin: RobotKinematics, q0, dt: float):
@@ -99,7 +99,7 @@ class Localisation(LeafSystem):
         self._z_far = resolve_sensor(sc.sensor).z_far
         q0 = np.asarray(q0, float)
         model0 = environment_model(sc, self.reg_cfg) if sc.mission.relocalization == "icp" else RegistrationModel()
-        mem = _Memory(Belief.exact(q0), 0, -1, np.zeros((3, 3)), model0, RegisteredScan())
+        mem = _Memory(Belief.exact(q0), 0, -1, model0, RegisteredScan())
         self._pc = self.DeclareAbstractInputPort("point_cloud", AbstractValue.Make(PointCloud()))
         from pydrake.systems.sensors import ImageDepth32F
         self._depth = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
@@ -127,7 +127,7 @@ class Localisation(LeafSystem):
         return status if status.idle and status.plan_id > mem.scanned_plan else None
 
     def _register(self, context, mem: _Memory, status: ControllerStatus):
-        """(the registered scan, the corrected belief, the pending covariance, the model)."""
+        """(the registered scan, the corrected belief, the registration model)."""
         t0 = time.perf_counter()
         X_WC = self._kin.camera_poses(mem.belief.state)[0]
         cloud = self._pc.Eval(context)
@@ -139,7 +139,7 @@ class Localisation(LeafSystem):
         icp = None
         corr = Correction()
         integrate = True
-        pending = mem.pending
+        pending = mem.belief.covariance
         if self.sc.mission.relocalization == "icp" and mem.belief.scan > 0:
             tau: ControlSequence = self._tau.Eval(context)
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
@@ -165,8 +165,8 @@ class Localisation(LeafSystem):
             plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
             icp=icp.to_json() if icp is not None else None))
         dead = mem.belief.state
-        belief = Belief(k, dead, corr.apply_state(dead), pending.copy())
-        return scan, belief, pending, model
+        belief = Belief(k, dead, corr.apply_state(dead), pending)
+        return scan, belief, model
 
     def _calc_outcome(self, context, value):
         """The due scan's registration and the memory after it (None: no scan due), cached:
@@ -176,8 +176,8 @@ class Localisation(LeafSystem):
         if status is None:
             value.set_value(_Outcome(mem.last_scan, None))
             return
-        scan, belief, pending, model = self._register(context, mem, status)
-        value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, pending, model, scan)))
+        scan, belief, model = self._register(context, mem, status)
+        value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, model, scan)))
 
     def _calc_scan(self, context, output):
         output.set_value(self._outcome.Eval(context).scan)
@@ -192,7 +192,7 @@ class Localisation(LeafSystem):
             # a new plan: the belief is its predicted end state until the next scan corrects it
             b = mem.belief
             new = _Memory(Belief(b.scan, b.dead_reckoned, tau.states[-1], b.covariance), tau.plan_id,
-                          mem.scanned_plan, mem.pending, mem.model, mem.last_scan)
+                          mem.scanned_plan, mem.model, mem.last_scan)
         state.get_mutable_abstract_state(self._mem).set_value(new)
 
     def _calc_belief(self, context, output):

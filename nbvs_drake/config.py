@@ -151,6 +151,9 @@ class PlannerConfig:
     #: chance their unknown stretch holds surface; docs/decisions.md says how it compares)
     metric: str = "sur"
     ort_vertices: int = 10000  #: ORT tree size k (the ORT paper: 10^4 is the good trade-off)
+    #: ORT growth in batches of this many extensions: each batch extends from the tree as it
+    #: stood before it and checks its edges in one Drake batch (1: one extension at a time)
+    ort_batch: int = 64
     tree_step: float = 1.0  #: tree extension step in the weighted metric of eq. 8
     #: RRT Ext-Ext nodes when no direct steering path reaches a candidate (Table 1: 10^4);
     #: 0: direct steering paths only
@@ -396,6 +399,7 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.metric in ("surface", "sur", "fig", "sig", "vuv", "rsv", "seed001"),
              f"planner.metric must be one of surface, sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
     _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")
+    _require(p.ort_batch >= 1, f"planner.ort_batch must be >= 1, got {p.ort_batch}")
     _require(p.tree_step > 0, f"planner.tree_step must be > 0, got {p.tree_step}")
     _require(p.rrt_max_nodes >= 0, f"planner.rrt_max_nodes must be >= 0, got {p.rrt_max_nodes}")
     _require(p.n_candidates > 0, f"planner.n_candidates must be > 0, got {p.n_candidates}")

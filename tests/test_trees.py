@@ -122,3 +122,33 @@ def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
         assert np.any((along > 0) & (off <= along * np.tan(np.radians(5.0)) + 0.012))
     res = pl.plan(PlanRequest(omap, np.array(sc.robot.start), np.random.default_rng(3)))
     assert res.status == "ok" and res.stages["director_ray"] == len(q)
+
+
+def test_batched_tree_growth_checks_edges_as_one_at_a_time(kin, first_scan_map):
+    """The ORT grows in batches (planner.ort_batch): the batched edge checks give the verdicts
+    of path_free edge by edge, and a batch of one target extends the tree as `extend` does."""
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.rrt import edge, extend, extend_batch
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.strategy = "ort"
+    pl = make_planner(sc, kin)
+    obstacles = pl.obstacles.for_map(omap)
+    rng = np.random.default_rng(4)
+    q0 = np.array(sc.robot.start)
+    targets = pl.sampler.sample_states(rng, 120)
+    paths = [edge(q0, q0 + 0.6 * (t - q0), sc.robot)[1] for t in targets]
+    one_by_one = np.array([pl.motion.tree_path_free(p, obstacles) for p in paths])
+    assert 0 < one_by_one.sum() < len(paths)  # both verdicts occur
+    np.testing.assert_array_equal(pl.motion.tree_paths_free(paths, obstacles), one_by_one)
+
+    w = np.asarray(sc.planner.weights)
+    a, b = Tree(q0, 10), Tree(q0, 10)
+    free_one = lambda s: pl.motion.tree_path_free(s, obstacles)  # noqa: E731
+    free_many = lambda ps: pl.motion.tree_paths_free(ps, obstacles)  # noqa: E731
+    for t in targets[:10]:
+        extend(a, t, sc.planner.tree_step, w, sc.robot, free_one, kin.clip_arm)
+        extend_batch(b, t[None], sc.planner.tree_step, w, sc.robot, free_many, kin.clip_arm)
+    assert a.n == b.n > 1
+    np.testing.assert_array_equal(a.q[: a.n], b.q[: b.n])
+    np.testing.assert_array_equal(a.parent[: a.n], b.parent[: b.n])

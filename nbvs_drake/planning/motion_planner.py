@@ -93,9 +93,32 @@ class MotionPlanner:
         start = self.escape_prefix(states, obstacles)
         return bool(start) and obstacles.collision.path_free(states[start:], max_step=max_step)
 
+    def paths_free(self, paths: list[np.ndarray], obstacles: ObstacleModel, max_step: float = 0.02) -> np.ndarray:
+        """`path_free` of many paths, (N,) bool, the same verdicts with the collision checks
+        batched: arm limits, the end states in one batch, the paths of the survivors in two
+        (`CollisionModel.paths_free`); a path that fails there and starts in collision gets
+        the escape-prefix test of `path_free`."""
+        ok = np.array([bool(np.all(self.kin.arm_within_limits(s))) for s in paths], bool)
+        idx = np.flatnonzero(ok)
+        if len(idx):
+            ok[idx] = obstacles.free(np.stack([paths[i][-1] for i in idx]))
+        idx = np.flatnonzero(ok)
+        if len(idx):
+            ok[idx] = obstacles.collision.paths_free([paths[i] for i in idx], max_step=max_step)
+        for i in idx[~ok[idx]]:
+            start = self.escape_prefix(paths[i], obstacles)
+            ok[i] = bool(start) and obstacles.collision.path_free(paths[i][start:], max_step=max_step)
+        return ok
+
+    #: tree edges of the Object Reconstruction Tree are checked at this resolution (m)
+    tree_max_step: float = 0.04
+
     def tree_path_free(self, states: np.ndarray, obstacles: ObstacleModel) -> bool:
-        """Tree edges of the Object Reconstruction Tree are checked at 4 cm resolution."""
-        return self.path_free(states, obstacles, max_step=0.04)
+        """A tree edge of the Object Reconstruction Tree (checked at `tree_max_step`)."""
+        return self.path_free(states, obstacles, max_step=self.tree_max_step)
+
+    def tree_paths_free(self, paths: list[np.ndarray], obstacles: ObstacleModel) -> np.ndarray:
+        return self.paths_free(paths, obstacles, max_step=self.tree_max_step)
 
     def connect(self, q0: np.ndarray, q1: np.ndarray, obstacles: ObstacleModel,
                 rng: np.random.Generator | None = None):

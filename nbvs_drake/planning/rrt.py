@@ -111,6 +111,38 @@ def extend(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: Rob
     return tree.add(i_near, states[-1], controls, path_length(states, w))
 
 
+def extend_batch(tree: Tree, targets: np.ndarray, step: float, w: np.ndarray, rc: RobotConfig,
+                 paths_free: Callable[[list[np.ndarray]], np.ndarray],
+                 clip_arm: Callable[[np.ndarray], np.ndarray]) -> int:
+    """EXTEND towards each of `targets` (B, 8) from the tree as it stands (the nearest
+    vertices are found before any of the batch is added), with the B edges checked in one
+    call of `paths_free`; the free ones are added in the targets' order, up to the tree's
+    capacity. Returns the number of vertices added. B = 1 is `extend`."""
+    from ..motion import path_length
+    cands = []
+    for q_target in targets:
+        i_near = tree.nearest(q_target, w)
+        q_near = tree.q[i_near]
+        d = np.asarray(q_target, float) - q_near
+        d[2] = wrap_angle(d[2])
+        dist = float(np.sqrt(np.sum(w * d * d)))
+        if dist < 1e-9:
+            continue
+        q_new = clip_arm(q_near + d * min(1.0, step / dist))
+        controls, states = edge(q_near, q_new, rc)
+        if len(controls):
+            cands.append((i_near, controls, states))
+    if not cands:
+        return 0
+    free = paths_free([c[2] for c in cands])
+    added = 0
+    for (i_near, controls, states), ok in zip(cands, free):
+        if ok and tree.n < tree.q.shape[0]:
+            tree.add(i_near, states[-1], controls, path_length(states, w))
+            added += 1
+    return added
+
+
 @dc.dataclass
 class RRTResult:
     found: bool

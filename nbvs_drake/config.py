@@ -149,7 +149,13 @@ class PlannerConfig:
     #: "surface" (the share of the view's rays expected to return on new surface: rays that
     #: cross unknown space to known surface, plus those that cross it and leave, weighted by the
     #: chance their unknown stretch holds surface; docs/decisions.md says how it compares)
+    #: "coverage" (the covered surface area the view is expected to add, new surface and
+    #: denser samples of surface seen too sparsely so far, for the coverage radius below;
+    #: view_metrics.M_COVER_GAIN)
     metric: str = "sur"
+    #: metric "coverage": a surface point counts as covered when a sample lies within this
+    #: distance (m; the papers' coverage threshold, 3 mm)
+    coverage_radius: float = 0.003
     ort_vertices: int = 10000  #: ORT tree size k (the ORT paper: 10^4 is the good trade-off)
     #: ORT growth in batches of this many extensions: each batch extends from the tree as it
     #: stood before it and checks its edges in one Drake batch (1: one extension at a time)
@@ -396,8 +402,11 @@ def validate(sc: Scenario) -> Scenario:
                  f"planner.circle_range {p.circle_range} m puts the view circle inside W_box (its footprint corners "
                  f"are {math.hypot(half[0], half[1]):.3f} m from the centre)")
     _require(p.view_poses >= 1, f"planner.view_poses must be >= 1, got {p.view_poses}")
-    _require(p.metric in ("surface", "sur", "fig", "sig", "vuv", "rsv", "seed001"),
-             f"planner.metric must be one of surface, sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
+    _require(p.metric in ("surface", "coverage", "sur", "fig", "sig", "vuv", "rsv", "seed001"),
+             f"planner.metric must be one of surface, coverage, sur, fig, sig, vuv, rsv, seed001, got {p.metric!r}")
+    _require(p.coverage_radius > 0, f"planner.coverage_radius must be > 0 m, got {p.coverage_radius}")
+    _require(p.metric != "coverage" or p.hrt_a == 0,
+             f"planner.metric coverage needs the exact ray casting (planner.hrt_a 0), got hrt_a {p.hrt_a}")
     _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")
     _require(p.ort_batch >= 1, f"planner.ort_batch must be >= 1, got {p.ort_batch}")
     _require(p.tree_step > 0, f"planner.tree_step must be > 0, got {p.tree_step}")

@@ -58,7 +58,16 @@ M_NEW_RAYS = 10
 #: occupied one, weighted by 1 - (1 - q)^n for its n unknown voxels, q being the chance that an
 #: unknown voxel holds surface (`surface_q`; ViewEvaluator estimates it from the map)
 M_NEW_EXPECTED = 11
-N_METRICS = 12
+#: expected covered surface area the view adds (m^2; 0 unless a density grid is given): each
+#: ray stands for the area its pixels sample at the range t where it lands, stride^2 (pitch t)^2,
+#: and adds the sample density 1 / (pitch t)^2 there. A patch sampled at density D is covered
+#: (every surface point within r of a sample) for the share 1 - exp(-pi r^2 D) (samples
+#: scattered uniformly; cov_k = pi r^2). Rays on known surface (at most
+#: `max_unknown_before_hit` unknown voxels before an occupied one) count the gain over the
+#: voxel's density so far; rays expected on new surface (M_NEW_EXPECTED, at the range of their
+#: first unknown voxel) count their expected share of the full gain from zero density
+M_COVER_GAIN = 12
+N_METRICS = 13
 M_VUV = M_UN_O  #: the ORT paper VUV
 
 
@@ -190,9 +199,26 @@ def _view_sets_to_metrics(H, hc, cy, cz, cT, cF, cOH, touched, nt, out):
     out[M_OC_O] += n_occ
 
 
+@nb.njit(cache=True, inline="always")
+def _voxel_range(bmin, res, i, j, k, ox, oy, oz):
+    """Distance from the camera to the centre of voxel (i, j, k)."""
+    ex = bmin[0] + (i + 0.5) * res - ox
+    ey = bmin[1] + (j + 0.5) * res - oy
+    ez = bmin[2] + (k + 0.5) * res - oz
+    return math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@nb.njit(cache=True, inline="always")
+def _cover_gain(density, cov_k, pitch, stride2, t):
+    """Covered area (m^2) a ray adds landing at range t on surface of sample density `density`
+    (see M_COVER_GAIN)."""
+    s2 = (pitch * t) * (pitch * t)
+    return stride2 * s2 * (math.exp(-cov_k * density) - math.exp(-cov_k * (density + 1.0 / s2)))
+
+
 @nb.njit(cache=True)
 def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
-                   unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out):
+                   unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2):
     """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
     collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks)."""
@@ -210,6 +236,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     n_blind = 0
     n_new = 0
     e_new = 0.0
+    cover = 0.0
+    with_cover = dens.shape[0] == nx
     for r in range(dirs_cam.shape[0]):
         # from the camera: [t0, t1] is the ray's part in the grid up to the maximum range
         dx, dy, dz, t0, t1 = world_ray(R, dirs_cam[r], 0.0, t_far[r], ox, oy, oz, bmin, ex, ey, ez)
@@ -232,6 +260,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
         wk = 0 if sk > 0 else 3
         n_unknown = 0
         ray_hit = False
+        t_unknown = 0.0  # range of the ray's first unknown voxel
         while True:  # cell by cell
             cf = ((i >> 2) * cy + (j >> 2)) * cz + (k >> 2)
             Uc, Oc = U[cf], O[cf]
@@ -244,6 +273,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                 n0 = n_unknown
                 if n0 == 0:
                     cF_bit = U64_1 << np.uint64(b)
+                    if with_cover:
+                        t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
                 else:
                     cF_bit = np.uint64(0)
                 while True:
@@ -274,6 +305,9 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                             if n_unknown <= mu:
                                 n_oc_rays += 1
                                 OHm = bit
+                                if with_cover:
+                                    cover += _cover_gain(dens[i, j, k], cov_k, pitch, stride2,
+                                                         _voxel_range(bmin, res, i, j, k, ox, oy, oz))
                             if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
                                 n_rsv += 1
                             nt = _flush(cf, Tm, Fm, OHm, vid, ctag, cT, cF, cOH, touched, nt)
@@ -283,6 +317,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                         Tm |= bit
                         if n_unknown == 1:
                             Fm |= bit
+                            if with_cover:
+                                t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
                         if n_unknown == mu + 1:
                             n_un_rays += 1
                         if h >= 0.0:
@@ -301,11 +337,14 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
             if st == 2 or i < 0 or j < 0 or k < 0 or i >= nx or j >= ny or k >= nz:
                 break
         if n_unknown > mu:  # the ray crosses unknown space: a return on new surface?
+            e = 1.0
             if ray_hit:
                 n_new += 1
-                e_new += 1.0
             else:
-                e_new += 1.0 - (1.0 - surface_q) ** n_unknown
+                e = 1.0 - (1.0 - surface_q) ** n_unknown
+            e_new += e
+            if with_cover:
+                cover += e * _cover_gain(0.0, cov_k, pitch, stride2, max(t_unknown, t_near[r]))
     out[M_RAYS] += n_rays
     out[M_SIG] += sig
     out[M_OC_RAYS] += n_oc_rays
@@ -314,12 +353,14 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     out[M_BLIND_RAYS] += n_blind
     out[M_NEW_RAYS] += n_new
     out[M_NEW_EXPECTED] += e_new
+    out[M_COVER_GAIN] += cover
     _view_sets_to_metrics(H, hc, cy, cz, cT, cF, cOH, touched, nt, out)
 
 
 @nb.njit(cache=True, parallel=True)
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
-                   n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0):
+                   n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
+                   density=None, cov_k=0.0, pitch=0.0, stride=1):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the
@@ -332,12 +373,20 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     (a surface's thickness: grazing rays cross uncleared voxels just in front of it).
     M_NEW_RAYS / M_NEW_EXPECTED: the rays expected to return on new surface, with `surface_q`
     the chance that an unknown voxel holds surface (see the columns).
+    M_COVER_GAIN when `density` (the map's sample density per voxel, samples per m^2) is given,
+    with cov_k = pi r^2 for the coverage radius r, the sensor's `pitch` (rad per pixel) and the
+    ray `stride` (pixels per ray along a row).
     Every ray is traced voxel by voxel (exact DDA); views are split into `n_chunks` chunks
     evaluated in parallel."""
     n = cam_pos.shape[0]
     H = entropy_grid(logodds)
     cls = classes_grid(logodds, l_free, l_occ)
     U, O, hc = cell_masks(cls, H)
+    if density is None:
+        dens = np.zeros((0, 0, 0), np.float32)
+    else:
+        dens = density
+    stride2 = float(stride * stride)
     nc = U.size
     out = np.zeros((n, N_METRICS))
     ctag = np.zeros((n_chunks, nc), np.int32)
@@ -352,8 +401,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         for v in range(lo, hi):
             _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
                            max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
-                           cOH[c],
-                           touched[c], out[v])
+                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2)
     return out
 
 

@@ -35,6 +35,10 @@ class ViewEvaluator:
         self.stride = stride or sc.planner.ray_stride
         self.hrt_a = sc.planner.hrt_a if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
+        from ..sensor import intrinsics
+        self.pitch = 1.0 / intrinsics(sc.sensor)[2]  # rad per pixel at the image centre
+        #: the coverage radius r of the "coverage" information term (0: not computed)
+        self.coverage_radius = sc.planner.coverage_radius if sc.planner.metric == "coverage" else 0.0
         import numba
         self.n_chunks = max(1, numba.get_num_threads())
 
@@ -69,7 +73,7 @@ class ViewEvaluator:
         """The information term of states q whose ray metrics are `met`."""
         if metric == "seed001":
             return self.voxel_sorting_score(omap, q)
-        return information(met, metric, un_total, len(self.dirs))
+        return information(met, metric, un_total, len(self.dirs), omap.spec.res)
 
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
         pos = np.ascontiguousarray(X[:, :3, 3])
@@ -81,7 +85,22 @@ class ViewEvaluator:
         kw = dict(near_unknown_blinds=self.near_unknown_blinds, surface_q=surface_probability(omap))
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
+        if self.coverage_radius > 0:
+            kw.update(density=sample_density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
+                      stride=self.stride)
         return K.evaluate_views(lo, *args, **kw)
+
+
+def sample_density(omap: OccupancyMap) -> np.ndarray:
+    """Samples per m^2 of surface in each voxel (float32 grid): the map's object points in the
+    voxel over the voxel's face area (a surface crossing a voxel has about that area)."""
+    res = omap.spec.res
+    idx = np.floor((np.asarray(omap.object_points, float) - omap.spec.bmin) / res).astype(np.int64)
+    dims = np.array(omap.spec.dims)
+    idx = idx[np.all((idx >= 0) & (idx < dims), axis=1)]
+    flat = np.ravel_multi_index(idx.T, omap.spec.dims) if len(idx) else np.zeros(0, np.int64)
+    counts = np.bincount(flat, minlength=int(np.prod(dims))).reshape(omap.spec.dims)
+    return np.ascontiguousarray(counts / res ** 2, dtype=np.float32)
 
 
 def surface_probability(omap: OccupancyMap) -> float:
@@ -110,7 +129,7 @@ def registration_overlap(met: np.ndarray) -> np.ndarray:
     return np.where(tot > 0, oc / np.maximum(tot, 1e-12), 0.0)
 
 
-def information(met: np.ndarray, metric: str, un_total: int, n_rays: int = 1) -> np.ndarray:
+def information(met: np.ndarray, metric: str, un_total: int, n_rays: int = 1, res: float = 0.02) -> np.ndarray:
     """The information term I(x) of the utility, normalised by the unknown voxels (entropy
     metrics also by ln 2, a voxel's maximum entropy): sur = VUV = un_o (Vasquez-Gomez et al.
     2017 eq. 6), fig, sig, rsv (the ORT paper); "surface": the share of the view's `n_rays`
@@ -118,6 +137,8 @@ def information(met: np.ndarray, metric: str, un_total: int, n_rays: int = 1) ->
     ViewEvaluator.voxel_sorting_score."""
     if metric == "surface":
         return met[:, K.M_NEW_EXPECTED] / max(n_rays, 1)
+    if metric == "coverage":  # covered area gained, in units of the unknown voxels' faces
+        return met[:, K.M_COVER_GAIN] / max(un_total * res ** 2, 1e-12)
     col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]
     norm = un_total * (np.log(2.0) if metric in ("fig", "sig") else 1.0)
     return met[:, col] / max(norm, 1e-12)

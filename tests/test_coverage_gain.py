@@ -1,0 +1,107 @@
+"""The "coverage" information term (view_metrics.M_COVER_GAIN): the covered surface area a
+view is expected to add, for a wall of known surface and for unknown space, against the
+closed form of the sampling model (a patch at sample density D is covered for the share
+1 - exp(-pi r^2 D); a ray landing at range t samples stride^2 (pitch t)^2 of it at density
+1 / (pitch t)^2)."""
+import math
+
+import numpy as np
+import pytest
+
+from nbvs_drake.mapping import view_metrics as K
+from nbvs_drake.mapping.occupancy import logit
+
+RES = 0.02
+DIMS = (40, 21, 21)
+L_FREE, L_OCC = logit(0.45), logit(0.55)
+PITCH, STRIDE, R_COV = 0.0043, 2, 0.003
+COV_K = math.pi * R_COV ** 2
+# the camera looks along world +x at the voxel row j = k = 10 (centres at 0.21 m)
+R_CAM = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # columns: camera x, y, z
+
+
+def _rays(n=3, spread=0.002):
+    a = np.linspace(-spread, spread, n)
+    d = np.array([[u, v, 1.0] for v in a for u in a])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    return d, np.full(len(d), 0.05), np.full(len(d), 5.0)
+
+
+def _gain(logodds, x_cam, density, surface_q=0.0):
+    dirs, tn, tf = _rays()
+    m = K.evaluate_views(logodds.astype(np.float32), np.zeros(3), RES, np.array([[x_cam, 0.21, 0.21]]),
+                         R_CAM[None].copy(), dirs, tn, tf, L_FREE, L_OCC, 1, 2, False, surface_q,
+                         density.astype(np.float32), COV_K, PITCH, STRIDE)[0]
+    return m, len(dirs)
+
+
+def _closed_form(t, density):
+    s2 = (PITCH * t) ** 2
+    return STRIDE ** 2 * s2 * (math.exp(-COV_K * density) - math.exp(-COV_K * (density + 1.0 / s2)))
+
+
+def _wall():
+    lo = np.full(DIMS, -2.0)
+    lo[30:] = 0.0  # unknown behind the wall
+    lo[30] = 2.0  # the wall: occupied voxels at x in [0.60, 0.62]
+    return lo
+
+
+@pytest.mark.parametrize("x_cam", [0.11, 0.31])
+def test_known_wall_gain_matches_the_closed_form(x_cam):
+    t = 0.61 - x_cam  # the wall voxels' centres
+    lo, dens = _wall(), np.zeros(DIMS)
+    m, n = _gain(lo, x_cam, dens)
+    assert m[K.M_OC_RAYS] == n
+    assert m[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(t, 0.0), rel=1e-9)
+    # sampled before at the density of this view: what it adds is the step to twice that
+    d1 = 1.0 / (PITCH * t) ** 2
+    dens[30] = d1
+    m2, _ = _gain(lo, x_cam, dens)
+    assert m2[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(t, d1), rel=1e-9)
+    assert 0 < m2[K.M_COVER_GAIN] < m[K.M_COVER_GAIN]
+    # sampled densely already: nothing to gain
+    dens[30] = 1e9
+    assert _gain(lo, x_cam, dens)[0][K.M_COVER_GAIN] == pytest.approx(0.0, abs=1e-15)
+
+
+def test_a_nearer_view_gains_more_on_sparsely_sampled_surface():
+    """The wall seen so far from 1 m: a view from 0.3 m adds more covered area than another from 1 m."""
+    lo, dens = _wall(), np.zeros(DIMS)
+    dens[30] = 1.0 / (PITCH * 1.0) ** 2
+    near, _ = _gain(lo, 0.31, dens)
+    far, _ = _gain(lo, 0.11, dens)
+    # per ray, each view samples stride^2 (pitch t)^2 of the wall: compare per unit area
+    per_area = [m[K.M_COVER_GAIN] / (STRIDE ** 2 * (PITCH * t) ** 2) for m, t in ((near, 0.30), (far, 0.50))]
+    assert per_area[0] > per_area[1] > 0
+
+
+def test_unknown_space_gains_its_expected_share_of_new_surface():
+    lo = np.full(DIMS, -2.0)
+    lo[30:] = 0.0  # ten unknown voxels along each ray, then the map ends
+    q = 0.2
+    m, n = _gain(lo, 0.11, np.zeros(DIMS), surface_q=q)
+    e = 1.0 - (1.0 - q) ** 10
+    assert m[K.M_NEW_EXPECTED] == pytest.approx(n * e)
+    assert m[K.M_COVER_GAIN] == pytest.approx(n * e * _closed_form(0.50, 0.0), rel=1e-9)
+    # without a density grid the column stays 0 (the other metrics do not pay for it)
+    dirs, tn, tf = _rays()
+    plain = K.evaluate_views(lo.astype(np.float32), np.zeros(3), RES, np.array([[0.11, 0.21, 0.21]]),
+                             R_CAM[None].copy(), dirs, tn, tf, L_FREE, L_OCC, 1, 2, False, q)[0]
+    assert plain[K.M_COVER_GAIN] == 0.0
+    np.testing.assert_array_equal(plain[: K.M_COVER_GAIN], m[: K.M_COVER_GAIN])
+
+
+def test_sample_density_counts_the_maps_object_points_per_voxel_face():
+    from nbvs_drake.config import Scenario
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    from nbvs_drake.planning.views import sample_density
+    sc = Scenario()
+    m0 = OccupancyMap.for_scenario(sc)
+    c = m0.spec.bmin + (np.array([3, 4, 5]) + 0.5) * m0.spec.res
+    pts = np.concatenate([c + np.random.default_rng(0).uniform(-0.009, 0.009, (7, 3)), [[99.0, 99.0, 99.0]]])
+    m = OccupancyMap(m0.spec, m0.model, object_points=pts.astype(np.float32), wbox_min=m0.wbox_min,
+                     wbox_max=m0.wbox_max)
+    d = sample_density(m)
+    assert d.shape == m0.spec.dims and d.dtype == np.float32
+    assert d[3, 4, 5] == pytest.approx(7 / m0.spec.res ** 2) and d.sum() == pytest.approx(7 / m0.spec.res ** 2)

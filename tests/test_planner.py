@@ -239,6 +239,7 @@ def test_no_view_feasible_under_the_noise_stops_the_run_and_says_why(kin, first_
     sc.planner.eu_samples = 100
     sc.planner.eu_max_collision_rate = 0.0
     sc.planner.overlap_h = 0.3  # the noisy scenarios' registration filter
+    sc.planner.metric = "sur"  # the noisy scenarios' metric (with it every top candidate collides here)
     sc.noise.sigma_v, sc.noise.sigma_w = 1.0, 4.0
     pl = make_planner(sc, kin)
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(sc.robot.start))

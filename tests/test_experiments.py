@@ -312,3 +312,14 @@ def test_a_run_whose_worker_dies_fails_alone(tmp_path):
     assert again.returncode == 0, again.stdout + again.stderr
     assert load_table(out / "tiny")["runs_finished"] == 2
     assert not (out / "tiny" / "runs" / "0.3_s1.failed.json").exists()
+
+
+def test_tables_say_at_which_commits_their_runs_were_made(tmp_path):
+    import json
+
+    from nbvs_drake.experiments.aggregate import run_commits
+    for i, c in enumerate(["a" * 40, "a" * 40, "b" * 40 + "+dirty", None]):
+        d = tmp_path / "runs" / f"r{i}"
+        d.mkdir(parents=True)
+        (d / "run.json").write_text(json.dumps({"run_id": f"r{i}"} | ({"git_commit": c} if c else {})))
+    assert run_commits(tmp_path) == "aaaaaaa x2, bbbbbbb+dirty x1, unrecorded x1"

@@ -517,6 +517,21 @@ def _wall_stats(wall: dict) -> dict:
             "values": vals}
 
 
+def run_commits(exp_dir) -> str:
+    """The commits the finished runs were made at (each run's run.json), short, with how many
+    runs each: "a34f294 x20, 232f94c x10"; runs from before commits were recorded count as
+    "unrecorded"."""
+    counts: dict[str, int] = {}
+    for rj in sorted((Path(exp_dir) / "runs").glob("*/run.json")):
+        try:
+            c = json.loads(rj.read_text()).get("git_commit") or "unrecorded"
+        except (OSError, ValueError):
+            continue
+        c = c if c in ("unrecorded", "unknown") else c[:7] + ("+dirty" if c.endswith("+dirty") else "")
+        counts[c] = counts.get(c, 0) + 1
+    return ", ".join(f"{c} x{n}" for c, n in sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
 # --------------------------------------------------------------------------------------
 # writing and reading
 # --------------------------------------------------------------------------------------
@@ -531,6 +546,7 @@ def write_table(r: dict, exp_dir, stamp: dict | None = None) -> dict:
     stamp = dict(stamp or {})
     stamp.setdefault("date", _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"))
     stamp.setdefault("git_commit", git_commit())
+    stamp.setdefault("run_commits", run_commits(exp_dir))
     table = build_table(r, exp_dir, stamp)
     figures = draw_figures(r, table, exp_dir)
     table["figures"] = figures

@@ -88,6 +88,8 @@ def write_report(out_root, dest) -> tuple[Path, list[str]]:
         md = _relink(md, d, dest)
         stamp = (f"*Produced by* `{st.get('command') or '?'}` *at commit* `{st.get('git_commit', '?')}` "
                  f"*on* {st.get('date', '?')} ({st.get('executor', '?')}, {st.get('host', '?')}).")
+        if st.get("run_commits"):
+            stamp += f" *Runs made at:* {st['run_commits']}."
         first, _, rest = md.partition("\n")
         parts += [first.replace("### ", "## ", 1), "", stamp, rest.replace(TIMINGS_HEADING, "#" + TIMINGS_HEADING), ""]
         names.append(d.name)

@@ -68,8 +68,10 @@ def execute_run(spec: dict, out: Path, threads: int) -> dict:
     summary = reconstruct_run(spec["scenario"], Path(out), spec["seed"], spec["overrides"])
     if not (Path(out) / "summary.json").is_file():
         raise RuntimeError(f"the run returned but wrote no summary.json in {out}")
+    from .aggregate import git_commit
     return {"wall_s": time.perf_counter() - t0, "coverage": summary.get("coverage"),
-            "scans": summary.get("scans"), "host": socket.gethostname(), "numba_threads": threads}
+            "scans": summary.get("scans"), "host": socket.gethostname(), "numba_threads": threads,
+            "git_commit": git_commit()}
 
 
 def _die_with_parent():

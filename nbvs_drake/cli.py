@@ -63,13 +63,15 @@ def _cmd_experiment(args):
                          + (["--jobs", str(args.jobs)] if args.jobs else []) + ["--executor", args.executor]
                          + (["--address", args.address] if args.address else []) + ["--out", out]
                          + (["--retry-failed"] if args.retry_failed else [])
+                         + (["--table-only"] if args.table_only else [])
                          + [a for o in args.object for a in ("--object", o)])
-    ex = make_executor(args.executor, args.jobs, args.address)
+    ex = make_executor("local" if args.table_only else args.executor, args.jobs, args.address)
     failed = []
     try:
         for d in defs:
             failed += run_experiment(d, out, quick=args.quick, seeds=args.seeds, executor=ex,
-                                     retry_failed=args.retry_failed, command=command)["failed"]
+                                     retry_failed=args.retry_failed, command=command,
+                                     table_only=args.table_only)["failed"]
     finally:
         ex.close()
     if failed:
@@ -130,6 +132,8 @@ def main(argv=None) -> int:
     e.add_argument("--object", action="append", default=[], metavar="NAME=PATH",
                    help="one more object level (an OBJ/PLY/STL mesh) for experiments with an object factor")
     e.add_argument("--to", default=None, help="report: the markdown file (default: docs/results.md)")
+    e.add_argument("--table-only", action="store_true",
+                   help="run nothing: write the table of the runs finished so far (e.g. of a stopped batch)")
     e.set_defaults(func=_cmd_experiment)
     args = ap.parse_args(argv)
     try:

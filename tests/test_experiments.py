@@ -323,3 +323,14 @@ def test_tables_say_at_which_commits_their_runs_were_made(tmp_path):
         d.mkdir(parents=True)
         (d / "run.json").write_text(json.dumps({"run_id": f"r{i}"} | ({"git_commit": c} if c else {})))
     assert run_commits(tmp_path) == "aaaaaaa x2, bbbbbbb+dirty x1, unrecorded x1"
+
+
+def test_table_only_writes_the_table_of_the_finished_runs_and_runs_nothing(tmp_path):
+    import json
+
+    from nbvs_drake.cli import main
+    assert main(["experiment", "motion_noise", "--quick", "--table-only", "--out", str(tmp_path)]) == 0
+    d = tmp_path / "motion_noise_quick"
+    t = json.loads((d / "table.json").read_text())
+    assert t["runs_finished"] == 0 and t["runs_expected"] == 2 * 3  # the quick teapot: 2 seeds x 3 approaches
+    assert not [p for p in (d / "runs").iterdir() if p.is_dir()]

@@ -427,16 +427,17 @@ class Batch:
 
 def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, jobs: int | None = None,
                    executor="local", address: str | None = None, retry_failed: bool = False,
-                   command: str = "", progress: bool = True) -> dict:
+                   command: str = "", progress: bool = True, table_only: bool = False) -> dict:
     """Runs what is missing of one experiment into out_root/<name>[_quick]/ and writes its
-    table. `executor`: "local", "ray" or an executor from `make_executor` (left open, for
+    table (`table_only`: runs nothing, the table of the runs finished so far, e.g. of a batch
+    that was stopped). `executor`: "local", "ray" or an executor from `make_executor` (left open, for
     several experiments on one Ray session). Returns {"table", "dir", "ran", "skipped",
     "failed" (the run ids that failed, now or before)}."""
     if isinstance(executor, str):
         ex = make_executor(executor, jobs, address)
         try:
             return run_experiment(defn, out_root, quick=quick, seeds=seeds, executor=ex, retry_failed=retry_failed,
-                                  command=command, progress=progress)
+                                  command=command, progress=progress, table_only=table_only)
         finally:
             ex.close()
     from .aggregate import write_table
@@ -467,6 +468,8 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             batch.event(f"skipped {spec.run_id} (failed before; --retry-failed reruns it)")
         else:
             todo.append(spec)
+    if table_only:
+        todo = []
     import yaml
     (exp_dir / "definition.yaml").write_text(yaml.safe_dump({k: v for k, v in r.items() if not k.startswith("_")},
                                                             sort_keys=False, allow_unicode=True))

@@ -91,11 +91,10 @@ class Tree:
         return np.concatenate(parts) if parts else np.zeros((0, 7))
 
 
-def extend(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: RobotConfig,
-           path_free: PathFree, clip_arm: Callable[[np.ndarray], np.ndarray]) -> int | None:
-    """EXTEND: from the nearest vertex towards q_target by at most `step` (weighted metric);
-    adds the new vertex when its steering edge is collision free. Returns its index or None."""
-    from ..motion import path_length
+def _steer_edge(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: RobotConfig,
+                clip_arm: Callable[[np.ndarray], np.ndarray]):
+    """The edge EXTEND would try towards q_target: (nearest vertex, controls, states), or
+    None when the target is (at) that vertex or the steering gives no controls."""
     i_near = tree.nearest(q_target, w)
     q_near = tree.q[i_near]
     d = np.asarray(q_target, float) - q_near
@@ -103,11 +102,19 @@ def extend(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: Rob
     dist = float(np.sqrt(np.sum(w * d * d)))
     if dist < 1e-9:
         return None
-    q_new = q_near + d * min(1.0, step / dist)
-    q_new = clip_arm(q_new)
-    controls, states = edge(q_near, q_new, rc)
-    if len(controls) == 0 or not path_free(states):
+    controls, states = edge(q_near, clip_arm(q_near + d * min(1.0, step / dist)), rc)
+    return (i_near, controls, states) if len(controls) else None
+
+
+def extend(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: RobotConfig,
+           path_free: PathFree, clip_arm: Callable[[np.ndarray], np.ndarray]) -> int | None:
+    """EXTEND: from the nearest vertex towards q_target by at most `step` (weighted metric);
+    adds the new vertex when its steering edge is collision free. Returns its index or None."""
+    from ..motion import path_length
+    e = _steer_edge(tree, q_target, step, w, rc, clip_arm)
+    if e is None or not path_free(e[2]):
         return None
+    i_near, controls, states = e
     return tree.add(i_near, states[-1], controls, path_length(states, w))
 
 
@@ -119,19 +126,7 @@ def extend_batch(tree: Tree, targets: np.ndarray, step: float, w: np.ndarray, rc
     call of `paths_free`; the free ones are added in the targets' order, up to the tree's
     capacity. Returns the number of vertices added. B = 1 is `extend`."""
     from ..motion import path_length
-    cands = []
-    for q_target in targets:
-        i_near = tree.nearest(q_target, w)
-        q_near = tree.q[i_near]
-        d = np.asarray(q_target, float) - q_near
-        d[2] = wrap_angle(d[2])
-        dist = float(np.sqrt(np.sum(w * d * d)))
-        if dist < 1e-9:
-            continue
-        q_new = clip_arm(q_near + d * min(1.0, step / dist))
-        controls, states = edge(q_near, q_new, rc)
-        if len(controls):
-            cands.append((i_near, controls, states))
+    cands = [e for e in (_steer_edge(tree, q, step, w, rc, clip_arm) for q in targets) if e is not None]
     if not cands:
         return 0
     free = paths_free([c[2] for c in cands])

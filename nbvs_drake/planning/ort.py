@@ -18,7 +18,7 @@ from ..motion import rollout
 from .candidates import StateSampler
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
-from .rrt import Tree, extend, extend_batch
+from .rrt import Tree, extend_batch
 from .utility import select_best
 from .views import ViewEvaluator, registration_overlap
 
@@ -43,12 +43,6 @@ class ORTPlanner:
         tree = Tree(np.asarray(q_current, float), p.ort_vertices)
         it = 0
         targets = self.sampler.targets(rng)
-        if p.ort_batch <= 1:
-            path_free = lambda s: self.motion.tree_path_free(s, obstacles)  # noqa: E731
-            while tree.n < p.ort_vertices + 1 and it < 20 * p.ort_vertices:
-                it += 1
-                extend(tree, next(targets), p.tree_step, w, self.sc.robot, path_free, self.sampler.kin.clip_arm)
-            return tree, it
         paths_free = lambda paths: self.motion.tree_paths_free(paths, obstacles)  # noqa: E731
         while tree.n < p.ort_vertices + 1 and it < 20 * p.ort_vertices:
             b = min(p.ort_batch, 20 * p.ort_vertices - it)

@@ -35,8 +35,7 @@ def scan_outcome(prev, cur) -> dict:
     new = np.asarray(cur.object_points[len(prev.object_points):], float)
     overlap = 0.0
     if len(new):
-        idx = np.floor((new - prev.spec.bmin) / prev.spec.res).astype(np.int64)
-        idx = np.clip(idx, 0, np.array(prev.spec.dims) - 1)
+        idx = np.clip(prev.spec.voxel_index(new)[0], 0, np.array(prev.spec.dims) - 1)
         cls = prev.classes()[idx[:, 0], idx[:, 1], idx[:, 2]]
         overlap = float(np.mean(cls == OCCUPIED))
     return {"revealed_unknown_voxels": int(revealed), "revealed_m3": revealed * prev.voxel_volume(),

@@ -50,6 +50,12 @@ class GridSpec:
         """OctoMap key of voxel (0, 0, 0): floor(bmin / res) + 2^15 (tree depth 16)."""
         return np.rint(self.bmin / self.res).astype(np.int64) + 32768
 
+    def voxel_index(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(idx (N, 3) int64, inside (N,) bool): the voxel holding each point, and whether it
+        lies in the grid."""
+        idx = np.floor((np.asarray(points, float) - self.bmin) / self.res).astype(np.int64)
+        return idx, np.all((idx >= 0) & (idx < np.array(self.dims)), axis=1)
+
     def centers(self) -> np.ndarray:
         """Voxel centres (nx, ny, nz, 3)."""
         ax = [self.bmin[a] + (np.arange(self.dims[a]) + 0.5) * self.res for a in range(3)]
@@ -119,10 +125,8 @@ class OccupancyMap:
 
     def free_at(self, points: np.ndarray) -> np.ndarray:
         """Whether each point lies in a voxel of the free class (False outside the map)."""
-        P = np.asarray(points, float)
-        idx = np.floor((P - self.spec.bmin) / self.spec.res).astype(np.int64)
-        inside = np.all((idx >= 0) & (idx < np.array(self.spec.dims)), axis=1)
-        out = np.zeros(len(P), bool)
+        idx, inside = self.spec.voxel_index(points)
+        out = np.zeros(len(idx), bool)
         i = idx[inside]
         lo = np.ascontiguousarray(self.logodds[i[:, 0], i[:, 1], i[:, 2]])
         out[inside] = classes_grid(lo, self.model.l_free, self.model.l_occ) == FREE

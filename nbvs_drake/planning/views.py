@@ -94,13 +94,11 @@ class ViewEvaluator:
 def sample_density(omap: OccupancyMap) -> np.ndarray:
     """Samples per m^2 of surface in each voxel (float32 grid): the map's object points in the
     voxel over the voxel's face area (a surface crossing a voxel has about that area)."""
-    res = omap.spec.res
-    idx = np.floor((np.asarray(omap.object_points, float) - omap.spec.bmin) / res).astype(np.int64)
-    dims = np.array(omap.spec.dims)
-    idx = idx[np.all((idx >= 0) & (idx < dims), axis=1)]
+    idx, inside = omap.spec.voxel_index(omap.object_points)
+    idx = idx[inside]
     flat = np.ravel_multi_index(idx.T, omap.spec.dims) if len(idx) else np.zeros(0, np.int64)
-    counts = np.bincount(flat, minlength=int(np.prod(dims))).reshape(omap.spec.dims)
-    return np.ascontiguousarray(counts / res ** 2, dtype=np.float32)
+    counts = np.bincount(flat, minlength=int(np.prod(omap.spec.dims))).reshape(omap.spec.dims)
+    return np.ascontiguousarray(counts / omap.spec.res ** 2, dtype=np.float32)
 
 
 def surface_probability(omap: OccupancyMap) -> float:
@@ -129,15 +127,19 @@ def registration_overlap(met: np.ndarray) -> np.ndarray:
     return np.where(tot > 0, oc / np.maximum(tot, 1e-12), 0.0)
 
 
-def information(met: np.ndarray, metric: str, un_total: int, n_rays: int = 1, res: float = 0.02) -> np.ndarray:
+def information(met: np.ndarray, metric: str, un_total: int, n_rays: int = 1,
+                res: float | None = None) -> np.ndarray:
     """The information term I(x) of the utility, normalised by the unknown voxels (entropy
     metrics also by ln 2, a voxel's maximum entropy): sur = VUV = un_o (Vasquez-Gomez et al.
     2017 eq. 6), fig, sig, rsv (the ORT paper); "surface": the share of the view's `n_rays`
-    rays expected to return on new surface (view_metrics.M_NEW_EXPECTED). seed001: see
+    rays expected to return on new surface (view_metrics.M_NEW_EXPECTED); "coverage": the
+    covered area gained (view_metrics.M_COVER_GAIN) over un_total voxel faces of size `res`. seed001: see
     ViewEvaluator.voxel_sorting_score."""
     if metric == "surface":
         return met[:, K.M_NEW_EXPECTED] / max(n_rays, 1)
-    if metric == "coverage":  # covered area gained, in units of the unknown voxels' faces
+    if metric == "coverage":  # covered area gained, in units of the unknown voxels' faces (res: voxel size)
+        if res is None:
+            raise ValueError("information: metric coverage needs the map's voxel size res")
         return met[:, K.M_COVER_GAIN] / max(un_total * res ** 2, 1e-12)
     col = {"sur": K.M_UN_O, "vuv": K.M_VUV, "fig": K.M_FIG, "sig": K.M_SIG, "rsv": K.M_RSV}[metric]
     norm = un_total * (np.log(2.0) if metric in ("fig", "sig") else 1.0)

@@ -52,7 +52,7 @@ def _cmd_experiment(args):
     if not args.names:
         raise ExperimentError("name an experiment (`nbvs experiment --list` lists them) or `report`")
     if args.names == ["report"]:
-        dest, names = write_report(out, args.to or "docs/results.md")
+        dest, names = write_report(out, args.to or "docs/results.md", args.figures)
         print(f"{dest}: {len(names)} tables ({', '.join(names)})")
         return
     defs = [with_objects(load_definition(n), args.object) if args.object else load_definition(n)
@@ -132,6 +132,9 @@ def main(argv=None) -> int:
     e.add_argument("--object", action="append", default=[], metavar="NAME=PATH",
                    help="one more object level (an OBJ/PLY/STL mesh) for experiments with an object factor")
     e.add_argument("--to", default=None, help="report: the markdown file (default: docs/results.md)")
+    e.add_argument("--figures", default=None, metavar="DIR",
+                   help="report: where the tables' figures are copied to and linked from "
+                        "(default: the report's folder/figures/experiments)")
     e.add_argument("--table-only", action="store_true",
                    help="run nothing: write the table of the runs finished so far (e.g. of a stopped batch)")
     e.set_defaults(func=_cmd_experiment)

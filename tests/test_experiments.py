@@ -22,6 +22,7 @@ from nbvs_drake.experiments import (
     load_table,
     resolve,
     with_objects,
+    write_report,
     write_table,
 )
 
@@ -163,6 +164,12 @@ figures:
     assert (tmp_path / "e" / "cov.png").stat().st_size > 5000 and (tmp_path / "e" / "pred.png").is_file()
     lt = load_table(tmp_path / "e")
     assert lt.cell("0.3")["finished"] == 2 and lt.markdown == md and len(lt.runs()["0.3"]) == 2
+    # the report copies the figures beside itself and links them there
+    dest = tmp_path / "docs" / "results.md"
+    write_report(tmp_path, dest)
+    assert "](figures/experiments/e/cov.png)" in dest.read_text()
+    copied = dest.parent / "figures" / "experiments" / "e" / "cov.png"
+    assert copied.read_bytes() == (tmp_path / "e" / "cov.png").read_bytes()
 
 
 def _snapshot(runs: Path) -> dict:
@@ -210,7 +217,10 @@ def test_local_and_ray_executors_give_the_same_tables(tmp_path):
     text = dest.read_text()
     assert text.index("## motion_noise") < text.index("## ort_vs_rs")
     assert "Produced by* `nbvs experiment motion_noise ort_vs_rs --quick" in text and "at commit" in text
-    assert "](../local/motion_noise_quick/coverage_per_scan.png)" in text
+    # the figures are copied beside the report and linked there, not into the output folder
+    assert "](figures/experiments/motion_noise_quick/coverage_per_scan.png)" in text
+    fig = tmp_path / "docs" / "figures" / "experiments" / "motion_noise_quick" / "coverage_per_scan.png"
+    assert fig.read_bytes() == (tmp_path / "local" / "motion_noise_quick" / "coverage_per_scan.png").read_bytes()
 
 
 def test_a_killed_batch_keeps_its_finished_runs_and_redoes_only_the_unfinished(tmp_path):

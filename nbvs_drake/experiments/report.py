@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 from pathlib import Path
 
 from .aggregate import TIMINGS_HEADING, load_table
@@ -45,13 +46,21 @@ def listing() -> str:
     return "\n".join(lines)
 
 
-def _relink(md: str, src_dir: Path, dest: Path) -> str:
-    """Figure links of a table.md made relative to the report's folder."""
+def _relink(md: str, src_dir: Path, dest: Path, figures: Path | None = None) -> str:
+    """Figure links of a table.md made relative to the report's folder. With `figures`, each
+    linked file that exists is copied there (figures/<experiment>/<file>) and linked there,
+    so that the report does not point into an output folder that is not kept with it."""
     def sub(m):
         target = m.group(2)
         if re.match(r"^[a-z]+://", target) or target.startswith("/"):
             return m.group(0)
-        rel = os.path.relpath(src_dir / target, dest.parent)
+        src = src_dir / target
+        if figures is not None and src.is_file():
+            copy = figures / src_dir.name / src.name
+            copy.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(src, copy)
+            src = copy
+        rel = os.path.relpath(src, dest.parent)
         return f"![{m.group(1)}]({rel})"
     return re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", sub, md)
 
@@ -60,12 +69,15 @@ def _relink(md: str, src_dir: Path, dest: Path) -> str:
 BEGIN, END = "<!-- nbvs experiment report: begin -->", "<!-- nbvs experiment report: end -->"
 
 
-def write_report(out_root, dest) -> tuple[Path, list[str]]:
+def write_report(out_root, dest, figures=None) -> tuple[Path, list[str]]:
     """Assembles dest (docs/results.md) from out_root/*/table.md, built-in experiments
     first in their listing order (the full version, then the quick one), then any other.
+    The tables' figures are copied to `figures` (default: dest's folder/figures/experiments)
+    and linked there.
     A dest that holds the BEGIN and END markers keeps everything outside them (the "# Results"
     heading is then left to the file); otherwise dest is written whole."""
     out_root, dest = Path(out_root), Path(dest)
+    figures = Path(figures) if figures is not None else dest.parent / "figures" / "experiments"
     order = {n: i for i, n in enumerate(definition_names())}
     found = [p.parent for p in out_root.glob("*/table.json")]
 
@@ -85,7 +97,7 @@ def write_report(out_root, dest) -> tuple[Path, list[str]]:
         t = load_table(d)
         st = t.get("stamp") or {}
         md = t.markdown.split("\nProvenance:", 1)[0].rstrip()
-        md = _relink(md, d, dest)
+        md = _relink(md, d, dest, figures)
         stamp = (f"*Produced by* `{st.get('command') or '?'}` *at commit* `{st.get('git_commit', '?')}` "
                  f"*on* {st.get('date', '?')} ({st.get('executor', '?')}, {st.get('host', '?')}).")
         if st.get("run_commits"):

@@ -75,6 +75,18 @@ class ViewEvaluator:
             return self.voxel_sorting_score(omap, q)
         return information(met, metric, un_total, len(self.dirs), omap.spec.res)
 
+    _density_of = (None, None)  # (the object points it was computed from, sample_density)
+
+    def _density(self, omap: OccupancyMap) -> np.ndarray:
+        """sample_density(omap), computed once per set of object points (a map's points are a
+        read-only array, replaced, not changed, by each scan): the expected utility evaluates
+        the rollouts of every candidate against the same map."""
+        src, dens = self._density_of
+        if src is not omap.object_points:
+            dens = sample_density(omap)
+            self._density_of = (omap.object_points, dens)
+        return dens
+
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
         pos = np.ascontiguousarray(X[:, :3, 3])
         rot = np.ascontiguousarray(X[:, :3, :3])
@@ -86,19 +98,42 @@ class ViewEvaluator:
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
         if self.coverage_radius > 0:
-            kw.update(density=sample_density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
+            kw.update(density=self._density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
                       stride=self.stride)
         return K.evaluate_views(lo, *args, **kw)
 
 
-def sample_density(omap: OccupancyMap) -> np.ndarray:
-    """Samples per m^2 of surface in each voxel (float32 grid): the map's object points in the
-    voxel over the voxel's face area (a surface crossing a voxel has about that area)."""
-    idx, inside = omap.spec.voxel_index(omap.object_points)
-    idx = idx[inside]
-    flat = np.ravel_multi_index(idx.T, omap.spec.dims) if len(idx) else np.zeros(0, np.int64)
-    counts = np.bincount(flat, minlength=int(np.prod(omap.spec.dims))).reshape(omap.spec.dims)
-    return np.ascontiguousarray(counts / omap.spec.res ** 2, dtype=np.float32)
+#: neighbours of each model point whose distance gives its local sample density
+DENSITY_NEIGHBOURS = 10
+
+
+def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS) -> np.ndarray:
+    """Samples per m^2 of surface in each voxel (float32 grid; 0 where the map has no object
+    point): the median over the voxel's object points of their local density (k - 1/3) /
+    (pi d_k^2), d_k the distance to a point's k-th nearest neighbour among the map's points
+    (for samples spread at random over a surface at density D, pi d_k^2 D is Gamma(k, 1)
+    distributed, whose median is about k - 1/3: the voxel's median is then about D).
+
+    The points in a voxel over the voxel's face area, the first estimate, saw a surface that
+    only clips a voxel's corner as sparsely sampled however dense its samples were: on the
+    bunny after 12 scans it put the surface not yet covered at 3 mm within the observed
+    voxels at 0.051 m^2 where the ground truth left 0.015 m^2 (this estimate: 0.016 m^2), and
+    the planner kept returning to surface it had covered (docs/decisions.md)."""
+    from scipy.spatial import cKDTree
+    dims = omap.spec.dims
+    out = np.zeros(dims, np.float32)
+    pts = np.asarray(omap.object_points, np.float64)
+    idx, inside = omap.spec.voxel_index(pts)
+    if int(np.count_nonzero(inside)) == 0 or len(pts) <= k:
+        return out
+    dk = cKDTree(pts).query(pts[inside], k + 1)[0][:, -1]  # the nearest is the point itself
+    dens = (k - 1.0 / 3.0) / (np.pi * np.maximum(dk, 1e-6) ** 2)
+    flat = np.ravel_multi_index(idx[inside].T, dims)
+    order = np.lexsort((dens, flat))  # by voxel, then by density
+    vox, start, count = np.unique(flat[order], return_index=True, return_counts=True)
+    # the median of each voxel's sorted densities (the upper middle for an even count)
+    out.reshape(-1)[vox] = dens[order][start + count // 2]
+    return out
 
 
 def surface_probability(omap: OccupancyMap) -> float:

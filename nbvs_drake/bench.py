@@ -234,6 +234,24 @@ def bench_motion(seed: int = 0) -> dict:
     return out
 
 
+def bench_prediction(objects=("teapot", "bunny"), seed: int = 1, n_best: int = 60, n_random: int = 60) -> dict:
+    """The coverage gain's predictions against rendered scans after the first scan of the
+    default scenario, per object (diagnostics.candidate_gains): the rank correlation of the
+    predicted and the measured gain over the rendered candidates, and what the view predicted
+    best gave against the best of them."""
+    from .config import load_scenario
+    from .diagnostics import candidate_gains
+    out = {"seed": seed, "n_best": n_best, "n_random": n_random}
+    for obj in objects:
+        settings = ["scene.object.kind=bunny", "scene.object.size=-1"] if obj == "bunny" else [
+            f"scene.object.kind={obj}"]
+        t = time.perf_counter()
+        r = candidate_gains(load_scenario(None, seed=seed, settings=settings), n_best=n_best, n_random=n_random)
+        out[obj] = {k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()
+                    if k not in ("predicted_m2", "gain", "states")} | {"seconds": round(time.perf_counter() - t, 1)}
+    return out
+
+
 def main(args) -> int:
     if args.what == "visibility":
         res = bench_visibility(n_views=args.views)
@@ -241,6 +259,8 @@ def main(args) -> int:
         res = bench_planning()
     elif args.what == "motion":
         res = bench_motion()
+    elif args.what == "prediction":
+        res = bench_prediction()
     else:
         raise SystemExit(f"unknown benchmark {args.what!r}")
     print(json.dumps(res, indent=None if args.json else 2))

@@ -164,6 +164,10 @@ class PlannerConfig:
     #: RRT Ext-Ext nodes when no direct steering path reaches a candidate (Table 1: 10^4);
     #: 0: direct steering paths only
     rrt_max_nodes: int = 10000
+    #: when no direct steering path reaches a candidate, try paths whose base drives through a
+    #: waypoint beside the straight line (motion.steer_via: around the table to the object's
+    #: far side) before the RRT; false: the papers' direct steering and RRT Ext-Ext only
+    detour_steering: bool = False
     n_candidates: int = 4000  #: state samples whose director ray meets W_box
     overlap_h: float = 0.5  #: registration threshold h (Table 1: 50 %)
     top_k: int = 25  #: candidates kept for motion planning (§7.6 step 7)

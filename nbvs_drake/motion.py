@@ -213,3 +213,42 @@ def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np
         out.append(("tuck", np.concatenate([_arm_controls(tuck - q0[3:], rc), base,
                                             _arm_controls(q1[3:] - tuck, rc)])))
     return out
+
+
+#: perpendicular offsets (fractions of the start-goal distance) of the waypoints `detours` tries
+DETOUR_OFFSETS = (0.5, 0.75, 0.35)
+
+
+def detour_waypoints(q0: np.ndarray, q1: np.ndarray, xy_bounds) -> list[np.ndarray]:
+    """Base positions (x, y) beside the straight line from q0 to q1, for a path that drives
+    around what stands between them (the table between two sides of the object): the
+    midpoint moved perpendicular to the line by each of DETOUR_OFFSETS times the distance, on
+    either side, kept within xy_bounds; nearest first."""
+    p0, p1 = np.asarray(q0[:2], float), np.asarray(q1[:2], float)
+    d = p1 - p0
+    L = float(np.hypot(*d))
+    if L < 1e-3:
+        return []
+    n = np.array([-d[1], d[0]]) / L
+    mid = 0.5 * (p0 + p1)
+    lo, hi = xy_bounds
+    out = []
+    for f in DETOUR_OFFSETS:
+        for s in (1.0, -1.0):
+            out.append(np.clip(mid + s * f * L * n, lo, hi))
+    return out
+
+
+def steer_via(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, rc: RobotConfig) -> list[tuple[str, np.ndarray]]:
+    """Control sequences from q0 to q1 whose base drives through the waypoint w (x, y):
+    turn-drive to w, turn-drive-turn to q1 (each leg forward), with the arm moving during the
+    whole base motion ('detour') or tucked for it ('detour_tuck'). Exact under the noise-free
+    Euler model, as `steer`'s."""
+    q0 = np.asarray(q0, float)
+    q1 = np.asarray(q1, float)
+    heading = math.atan2(q1[1] - w[1], q1[0] - w[0])  # the second leg's driving direction
+    qw = np.concatenate([w, [heading], q0[3:]])
+    base = np.concatenate([_base_controls(_base_phases(q0, qw)[0], rc), _base_controls(_base_phases(qw, q1)[0], rc)])
+    tuck = np.where(np.isnan(TUCK_ARM), q0[3:], TUCK_ARM)
+    return [("detour", _together(base, q1[3:] - q0[3:], rc)),
+            ("detour_tuck", np.concatenate([_arm_controls(tuck - q0[3:], rc), base, _arm_controls(q1[3:] - tuck, rc)]))]

@@ -132,3 +132,66 @@ tenth of the same voxels);
     face = np.abs(counts[sel] / m0.spec.res ** 2 / D - 1)  # the points per voxel face: varies with the cut
     assert np.quantile(err, 0.9) < 0.4 and np.quantile(face, 0.9) > 0.6
     assert np.all(d[counts == 0] == 0)
+
+
+
+def _wall_behind(unknown):
+    """The wall at x = 30 (unknown behind it) seen from x = 0.11 m along free voxels, but for
+    the unknown voxels x in range(*unknown)."""
+    lo = _wall()
+    lo[unknown[0]:unknown[1]] = 0.0
+    return lo
+
+
+def _map(lo):
+    from nbvs_drake.config import Scenario
+    from nbvs_drake.mapping.occupancy import GridSpec, OccupancyMap, SensorModel
+    return OccupancyMap(GridSpec(np.zeros(3), RES, DIMS), SensorModel.from_config(Scenario().mapper),
+                        lo.astype(np.float32))
+
+
+def _gain_near(lo, dens, near, near_q):
+    dirs, tn, tf = _rays()
+    return K.evaluate_views(lo.astype(np.float32), np.zeros(3), RES, np.array([[0.11, 0.21, 0.21]]),
+                            R_CAM[None].copy(), dirs, tn, tf, L_FREE, L_OCC, 1, 2, False, 0.1,
+                            dens.astype(np.float32), COV_K, PITCH, STRIDE, near, near_q)[0], len(dirs)
+
+
+def test_unknown_air_far_from_known_surface_holds_no_new_surface():
+    """Rays that reach the known, sampled wall through unknown voxels 10-20 voxels before it
+    (outside the frustums of the scans that saw it) cross air: they gain what the wall's
+    density leaves. The first model (near None: every unknown voxel alike) counted them as
+    returns on new surface at the unknown stretch's range."""
+    from nbvs_drake.planning.views import near_surface
+    d1 = 1.0 / (PITCH * 1.0) ** 2
+    dens = np.zeros(DIMS)
+    dens[30] = d1
+    lo = _wall_behind((10, 21))
+    near, q_near = near_surface(_map(lo))
+    # the unknown voxels within 4 of the wall: behind it; of the known ones, the wall and its
+    # 4 free layers in front, so q_near = 1/5
+    assert not near[:30].any() and near[31:35].all() and not near[35:].any()
+    assert q_near == pytest.approx(1 / 5)
+    m, n = _gain_near(lo, dens, near, q_near)
+    assert m[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(0.50, d1), rel=1e-6)
+    old, _ = _gain_near(lo, dens, None, 0.0)
+    assert old[K.M_NEW_RAYS] == n
+    assert old[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(10.5 * RES - 0.11, 0.0), rel=1e-3)
+
+
+def test_rays_that_meet_known_surface_from_unknown_space_next_to_it_return_on_new_surface():
+    """Unknown voxels right before the wall (x = 24-29; 26-29 lie within reach): the rays
+    met the wall from behind, so the unknown stretch holds new surface, from its first voxel
+    near the wall."""
+    from nbvs_drake.planning.views import near_surface
+    dens = np.zeros(DIMS)
+    dens[30] = 1e9  # the wall itself is densely sampled: all the gain is new surface
+    lo = _wall_behind((24, 30))
+    near, q_near = near_surface(_map(lo))
+    assert near[26:30].all() and not near[24:26].any()
+    m, n = _gain_near(lo, dens, near, q_near)
+    assert m[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(26.5 * RES - 0.11, 0.0), rel=1e-3)
+    # two near unknown voxels before the wall are a surface's thickness (max_unknown_before_hit): known surface
+    lo = _wall_behind((28, 30))
+    near, q_near = near_surface(_map(lo))
+    assert _gain_near(lo, dens, near, q_near)[0][K.M_COVER_GAIN] == pytest.approx(0.0, abs=1e-15)

@@ -344,3 +344,32 @@ def test_table_only_writes_the_table_of_the_finished_runs_and_runs_nothing(tmp_p
     t = json.loads((d / "table.json").read_text())
     assert t["runs_finished"] == 0 and t["runs_expected"] == 2 * 3  # the quick teapot: 2 seeds x 3 approaches
     assert not [p for p in (d / "runs").iterdir() if p.is_dir()]
+
+
+def test_a_finished_run_whose_scenario_changed_since_is_not_taken_as_finished(tmp_path):
+    """A finished run keeps its overrides when diagrams/*.yaml or the defaults change: the
+    batch compares its scenario.yaml with what the settings resolve to now, and stops with
+    a one-line error naming the fields (a stale run would otherwise enter the table)."""
+    from pydrake.common.yaml import yaml_dump_typed
+
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.experiments.runner import scenario_drift
+    y = tmp_path / "tiny.yaml"
+    y.write_text(TINY.replace("[1, 2]", "[1]"))
+    spec = expand(resolve(load_definition(str(y))))[0]
+    run = tmp_path / "o" / "tiny" / "runs" / spec.run_id
+    run.mkdir(parents=True)
+    sc = load_scenario(spec.scenario, seed=spec.seed, settings=spec.overrides)
+    (run / "scenario.yaml").write_text(yaml_dump_typed(sc))
+    assert scenario_drift(spec, run) == []
+    (run / "summary.json").write_text(json.dumps({"coverage": 0.5}))
+    (run / "run.json").write_text(json.dumps(spec.to_json()))
+    sc.planner.top_k = 7
+    sc.mapper.prob_hit = 0.8
+    (run / "scenario.yaml").write_text(yaml_dump_typed(sc))
+    assert scenario_drift(spec, run) == ["mapper.prob_hit", "planner.top_k"]
+    r = _cli(str(y), "--jobs", "1", "--out", str(tmp_path / "o"))
+    assert r.returncode != 0
+    err = r.stderr.strip().splitlines()
+    assert len(err) == 1 and "mapper.prob_hit, planner.top_k" in err[0] and "another --out" in err[0]
+    assert (run / "summary.json").is_file()  # nothing removed

@@ -6,7 +6,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from nbvs_drake.mapping import view_metrics as K
-from nbvs_drake.motion import path_length, rollout, steer, wrap_angle
+from nbvs_drake.motion import detour_waypoints, path_length, rollout, steer, steer_via, wrap_angle
 from nbvs_drake.planning import PlanRequest, make_planner
 from nbvs_drake.planning.utility import ExpectedUtilityScore
 from nbvs_drake.planning.views import director_ray_hits, registration_overlap
@@ -79,6 +79,44 @@ def test_steering_variants_are_exact(scenario):
         assert np.all(np.abs(U[:, 2:]) <= rc.max_arm_velocity + 1e-12)
         # turn-drive-turn: never turning and driving in the same step
         assert not np.any((U[:, 0] != 0) & (U[:, 1] != 0))
+
+
+def test_detour_steering_is_exact_and_passes_its_waypoint(scenario):
+    rc = scenario.robot
+    q0 = np.array([-1.45, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0])
+    q1 = np.array([1.45, 0.1, np.pi, 0.2, 0.5, -0.4, -0.2, 0.3])
+    ws = detour_waypoints(q0, q1, rc.xy_bounds)
+    assert len(ws) == 6
+    for w in ws:
+        assert np.all((w >= rc.xy_bounds[0]) & (w <= rc.xy_bounds[1]))
+        for kind, U in steer_via(q0, q1, w, rc):
+            st = rollout(q0, U, rc.control_dt)
+            np.testing.assert_allclose(st[-1, :2], q1[:2], atol=1e-9, err_msg=kind)
+            assert abs(wrap_angle(st[-1, 2] - q1[2])) < 1e-9
+            np.testing.assert_allclose(st[-1, 3:], q1[3:], atol=1e-9)
+            assert np.min(np.linalg.norm(st[:, :2] - w, axis=1)) < 1e-9
+            assert np.all(np.abs(U[:, 0]) <= rc.max_linear_velocity + 1e-12)
+            assert np.all(np.abs(U[:, 1]) <= rc.max_angular_velocity + 1e-12)
+            assert np.all(np.abs(U[:, 2:]) <= rc.max_arm_velocity + 1e-12)
+            assert not np.any((U[:, 0] != 0) & (U[:, 1] != 0))
+
+
+def test_the_motion_planner_drives_around_the_table_to_the_far_side(planner, first_scan_map):
+    """From the start, a view of the object's far side: every direct steering path drives
+    through the table; a detour reaches it without the RRT (the default has none)."""
+    from nbvs_drake.planning.motion_planner import PlanningObstacles
+    sc, omap = first_scan_map
+    assert sc.planner.rrt_max_nodes == 0
+    obst = PlanningObstacles(sc, planner.motion.kin).for_map(omap)
+    q0 = np.array(sc.robot.start)
+    q1 = np.array([1.45, 0.0, np.pi] + list(q0[3:]))  # the start's pose mirrored across the table
+    assert obst.free(q1[None])[0]
+    direct = [planner.motion.path_free(rollout(q0, U, sc.robot.control_dt), obst) for _, U in steer(q0, q1, sc.robot)]
+    assert not any(direct)
+    found = planner.motion.connect(q0, q1, obst, np.random.default_rng(0))
+    assert found is not None and found[0].startswith("detour")
+    assert planner.motion.path_free(found[2], obst)
+    np.testing.assert_allclose(found[2][-1, :2], q1[:2], atol=1e-9)
 
 
 def test_path_length_eq8():

@@ -425,6 +425,39 @@ class Batch:
             print(line, flush=True)
 
 
+def _flat(d, pre=""):
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{pre}{k}."))
+        else:
+            out[pre + k] = v
+    return out
+
+
+def scenario_drift(spec: RunSpec, run_dir: Path) -> list[str]:
+    """The scenario fields (dotted names) in which a finished run's scenario.yaml differs from
+    the scenario its spec resolves to now; [] when they agree or the run has no scenario.yaml.
+    A run keeps its overrides when diagrams/*.yaml or the schema's defaults change, so the
+    overrides alone do not tell a stale run. The old file is read with today's schema: a field
+    added since takes its default, and flags the run only where the scenario now sets it
+    otherwise."""
+    import dataclasses as dc
+
+    from ..config import load_scenario
+    from ..errors import NbvsError
+    f = Path(run_dir) / "scenario.yaml"
+    if not f.is_file():
+        return []
+    try:
+        was = load_scenario(f)
+    except NbvsError as e:
+        return [f"scenario.yaml unreadable: {e}"]
+    now = load_scenario(spec.scenario, seed=spec.seed, settings=spec.overrides)
+    a, b = _flat(dc.asdict(was)), _flat(dc.asdict(now))
+    return sorted(k for k in a.keys() | b.keys() if k not in ("base_dir",) and a.get(k) != b.get(k))
+
+
 def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, jobs: int | None = None,
                    executor="local", address: str | None = None, retry_failed: bool = False,
                    command: str = "", progress: bool = True, table_only: bool = False) -> dict:
@@ -461,6 +494,13 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
                     raise ExperimentError(
                         f"{final} was run with other settings ({have_key}) than this definition asks "
                         f"({spec.key()}); remove it or use another --out")
+            drift = [] if table_only else scenario_drift(spec, final)
+            if drift:
+                more = f" and {len(drift) - 3} more" if len(drift) > 3 else ""
+                raise ExperimentError(
+                    f"{final} was run with a scenario that differs from what its settings give now "
+                    f"({', '.join(drift[:3])}{more}: the scenario files or the defaults changed since); "
+                    f"remove it or use another --out")
             skipped.append(spec)
             batch.event(f"skipped {spec.run_id} (finished)")
         elif batch.failed_path(spec).is_file() and not retry_failed:

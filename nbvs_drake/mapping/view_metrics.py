@@ -62,10 +62,14 @@ M_NEW_EXPECTED = 11
 #: ray stands for the area its pixels sample at the range t where it lands, stride^2 (pitch t)^2,
 #: and adds the sample density 1 / (pitch t)^2 there. A patch sampled at density D is covered
 #: (every surface point within r of a sample) for the share 1 - exp(-pi r^2 D) (samples
-#: scattered uniformly; cov_k = pi r^2). Rays on known surface (at most
-#: `max_unknown_before_hit` unknown voxels before an occupied one) count the gain over the
-#: voxel's density so far; rays expected on new surface (M_NEW_EXPECTED, at the range of their
-#: first unknown voxel) count their expected share of the full gain from zero density
+#: scattered uniformly; cov_k = pi r^2). Only the unknown voxels marked `near` (next to known
+#: surface) may hold new surface: a ray that meets an occupied voxel after at most
+#: `max_unknown_before_hit` of them lands on known surface and counts the gain over the
+#: voxel's density so far (it crossed air: free voxels, or unknown ones far from any surface);
+#: after more, it met that surface from behind and returns on new surface; a ray that meets
+#: none crosses n near voxels and returns on new surface with the chance 1 - (1 - near_q)^n.
+#: Rays on new surface count the full gain from zero density at the range of their first
+#: near unknown voxel
 M_COVER_GAIN = 12
 N_METRICS = 13
 M_VUV = M_UN_O  #: the ORT paper VUV
@@ -218,7 +222,8 @@ def _cover_gain(density, cov_k, pitch, stride2, t):
 
 @nb.njit(cache=True)
 def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
-                   unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2):
+                   unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2,
+                   near, near_q):
     """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
     collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks)."""
@@ -259,8 +264,9 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
         wj = 0 if sj > 0 else 3
         wk = 0 if sk > 0 else 3
         n_unknown = 0
+        n_near = 0  # unknown voxels near known surface (coverage gain only)
         ray_hit = False
-        t_unknown = 0.0  # range of the ray's first unknown voxel
+        t_unknown = 0.0  # range of the ray's first unknown voxel near known surface (`near`)
         while True:  # cell by cell
             cf = ((i >> 2) * cy + (j >> 2)) * cz + (k >> 2)
             Uc, Oc = U[cf], O[cf]
@@ -273,13 +279,15 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                 n0 = n_unknown
                 if n0 == 0:
                     cF_bit = U64_1 << np.uint64(b)
-                    if with_cover:
-                        t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
                 else:
                     cF_bit = np.uint64(0)
                 while True:
                     Tm |= U64_1 << np.uint64(b)
                     n_unknown += 1
+                    if with_cover and near[i, j, k]:
+                        if n_near == 0:
+                            t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
+                        n_near += 1
                     i, j, k, ti, tj, tk, b, st = cell_step(i, j, k, ti, tj, tk, b, si, sj, sk, di, dj, dk,
                                                            bi, bj, bk, wi, wj, wk, t1)
                     if st != 0:
@@ -305,9 +313,9 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                             if n_unknown <= mu:
                                 n_oc_rays += 1
                                 OHm = bit
-                                if with_cover:
-                                    cover += _cover_gain(dens[i, j, k], cov_k, pitch, stride2,
-                                                         _voxel_range(bmin, res, i, j, k, ox, oy, oz))
+                            if with_cover and n_near <= mu:  # lands on known surface
+                                cover += _cover_gain(dens[i, j, k], cov_k, pitch, stride2,
+                                                     _voxel_range(bmin, res, i, j, k, ox, oy, oz))
                             if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
                                 n_rsv += 1
                             nt = _flush(cf, Tm, Fm, OHm, vid, ctag, cT, cF, cOH, touched, nt)
@@ -317,8 +325,10 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                         Tm |= bit
                         if n_unknown == 1:
                             Fm |= bit
-                            if with_cover:
+                        if with_cover and near[i, j, k]:
+                            if n_near == 0:
                                 t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
+                            n_near += 1
                         if n_unknown == mu + 1:
                             n_un_rays += 1
                         if h >= 0.0:
@@ -343,8 +353,9 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
             else:
                 e = 1.0 - (1.0 - surface_q) ** n_unknown
             e_new += e
-            if with_cover:
-                cover += e * _cover_gain(0.0, cov_k, pitch, stride2, max(t_unknown, t_near[r]))
+        if with_cover and n_near > mu:  # expected new surface, in the unknown space near known surface
+            e = 1.0 if ray_hit else 1.0 - (1.0 - near_q) ** n_near
+            cover += e * _cover_gain(0.0, cov_k, pitch, stride2, max(t_unknown, t_near[r]))
     out[M_RAYS] += n_rays
     out[M_SIG] += sig
     out[M_OC_RAYS] += n_oc_rays
@@ -360,7 +371,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
 @nb.njit(cache=True, parallel=True)
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                    n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
-                   density=None, cov_k=0.0, pitch=0.0, stride=1):
+                   density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the
@@ -375,7 +386,9 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     the chance that an unknown voxel holds surface (see the columns).
     M_COVER_GAIN when `density` (the map's sample density per voxel, samples per m^2) is given,
     with cov_k = pi r^2 for the coverage radius r, the sensor's `pitch` (rad per pixel) and the
-    ray `stride` (pixels per ray along a row).
+    ray `stride` (pixels per ray along a row); `near` (bool grid) marks the unknown voxels
+    that may hold new surface, each with the chance `near_q` (planning.views.near_surface;
+    None: every unknown voxel, with the chance `surface_q`).
     Every ray is traced voxel by voxel (exact DDA); views are split into `n_chunks` chunks
     evaluated in parallel."""
     n = cam_pos.shape[0]
@@ -384,8 +397,14 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     U, O, hc = cell_masks(cls, H)
     if density is None:
         dens = np.zeros((0, 0, 0), np.float32)
+        nr = np.zeros((0, 0, 0), np.bool_)
     else:
         dens = density
+        if near is None:  # every unknown voxel may hold surface, with the chance surface_q
+            nr = np.ones(cls.shape, np.bool_)
+            near_q = surface_q
+        else:
+            nr = near
     stride2 = float(stride * stride)
     nc = U.size
     out = np.zeros((n, N_METRICS))
@@ -401,7 +420,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         for v in range(lo, hi):
             _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
                            max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
-                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2)
+                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q)
     return out
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import rollout, steer
+from ..motion import detour_waypoints, rollout, steer, steer_via
 from ..robot import RobotKinematics
 from .candidates import StateSampler
 from .collision import CollisionModel
@@ -123,7 +123,10 @@ class MotionPlanner:
     def connect(self, q0: np.ndarray, q1: np.ndarray, obstacles: ObstacleModel,
                 rng: np.random.Generator | None = None):
         """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering
-        function's direct paths first (a tree that connects at its first extension); then
+        function's direct paths first (a tree that connects at its first extension); then, with
+        planner.detour_steering, paths whose base drives through a waypoint beside the straight
+        line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
+        the other); then
         RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
         dt = self.sc.robot.control_dt
         for kind, controls in steer(q0, q1, self.sc.robot):
@@ -131,6 +134,13 @@ class MotionPlanner:
             if self.path_free(states, obstacles):
                 return kind, controls, states
         p = self.sc.planner
+        if p.detour_steering and not obstacles.free(np.asarray(q1, float)[None])[0]:
+            return None
+        for w in detour_waypoints(q0, q1, self.sc.robot.xy_bounds) if p.detour_steering else ():
+            for kind, controls in steer_via(q0, q1, w, self.sc.robot):
+                states = rollout(q0, controls, dt)
+                if self.path_free(states, obstacles):
+                    return kind, controls, states
         if p.rrt_max_nodes > 0 and rng is not None:
             from .rrt import rrt_ext_ext
             res = rrt_ext_ext(q0, q1, self.sc.robot, np.asarray(p.weights), self.sampler.sample_states,

@@ -87,6 +87,16 @@ class ViewEvaluator:
             self._density_of = (omap.object_points, dens)
         return dens
 
+    _near_of = (None, None)  # (the log-odds it was computed from, near_surface(omap))
+
+    def _near(self, omap: OccupancyMap):
+        """near_surface(omap), once per map (its log-odds are a read-only array, replaced by each scan)."""
+        src, near = self._near_of
+        if src is not omap.logodds:
+            near = near_surface(omap)
+            self._near_of = (omap.logodds, near)
+        return near
+
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
         pos = np.ascontiguousarray(X[:, :3, 3])
         rot = np.ascontiguousarray(X[:, :3, :3])
@@ -98,8 +108,9 @@ class ViewEvaluator:
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
         if self.coverage_radius > 0:
+            near, near_q = self._near(omap)
             kw.update(density=self._density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
-                      stride=self.stride)
+                      stride=self.stride, near=near, near_q=near_q)
         return K.evaluate_views(lo, *args, **kw)
 
 
@@ -134,6 +145,41 @@ def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS) -> np.ndarra
     # the median of each voxel's sorted densities (the upper middle for an even count)
     out.reshape(-1)[vox] = dens[order][start + count // 2]
     return out
+
+
+#: unknown voxels within this many voxels of known surface may hold new surface (the
+#: coverage gain's model of the unknown space; see near_surface)
+NEAR_SURFACE_VOXELS = 4.0
+
+
+def near_surface(omap: OccupancyMap, reach: float = NEAR_SURFACE_VOXELS) -> tuple[np.ndarray, float]:
+    """Where the coverage gain expects new surface: the unknown voxels within `reach` voxels
+    (Euclidean) of an occupied one (bool grid), and the chance q_near that such a voxel holds
+    surface, estimated as the occupied share of the known voxels of W_box within the same reach
+    of occupied ones.
+
+    The object is one connected surface, so what the scans have not seen of it continues
+    from what they have: a ray that reaches known surface through unknown voxels next to it
+    comes from behind that surface and returns on new surface; unknown voxels far from every
+    known surface are the air outside the first views' frustums and beyond the object in
+    their shadows. Treating all unknown space alike (q = occupied / known voxels of W_box),
+    the first model, predicted 0.22 m^2 of new surface for a second view of the bunny beside
+    the first where the scan gave 0.02 m^2, and ranked views of the far side no higher:
+    over 120 candidates rendered after the first scan, the rank correlation of predicted and
+    measured coverage gain was 0.59 (bunny) and 0.34 (teapot); with this model 0.96 and 0.97,
+    and the view predicted best was the best measured (docs/decisions.md)."""
+    from scipy import ndimage
+
+    from ..mapping.voxel import FREE, OCCUPIED
+    c = omap.classes()
+    occ = c == OCCUPIED
+    if not occ.any():
+        return np.zeros(c.shape, bool), 0.0
+    close = ndimage.distance_transform_edt(~occ) <= reach
+    near = close & (c == UNKNOWN)
+    sel = c[close & omap.in_wbox()]
+    n_occ, n_free = int(np.count_nonzero(sel == OCCUPIED)), int(np.count_nonzero(sel == FREE))
+    return np.ascontiguousarray(near), (n_occ / (n_occ + n_free) if n_occ + n_free else 0.0)
 
 
 def surface_probability(omap: OccupancyMap) -> float:

@@ -1,0 +1,65 @@
+"""What the planner predicts against what the scans give, candidate by candidate: render the
+scan of each of a plan's candidates (the real RgbdSensor, `scanning.ScanRenderer`), integrate
+it into the plan's map and measure the coverage it adds, beside the covered-area gain the
+view evaluation predicted (`view_metrics.M_COVER_GAIN`). The instrument behind the coverage
+gain's model of unknown space (docs/decisions.md); `nbvs bench prediction` prints it."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .config import Scenario
+
+
+def _ranks(a: np.ndarray) -> np.ndarray:
+    return np.argsort(np.argsort(a, kind="stable"), kind="stable").astype(float)
+
+
+def candidate_gains(sc: Scenario, views=(), n_best: int = 60, n_random: int = 60, seed: int = 123) -> dict:
+    """After the scan from the start state and the scans from the robot states `views`, the
+    planner's candidates (generation and position filter of planner.n_candidates states) are
+    scored by the view evaluation; the `n_best` predicted best and `n_random` others drawn at
+    random are rendered. Returns the predicted gains (m^2), the measured gains (share of the
+    ground truth newly within 3 mm), their rank correlation (Spearman), and what the view
+    predicted best gave against the best measured."""
+    from .evaluation import coverage
+    from .mapping import view_metrics as K
+    from .mapping.occupancy import OccupancyMap
+    from .objects import build_object, ground_truth_points
+    from .planning.candidates import StateSampler
+    from .planning.motion_planner import PlanningObstacles
+    from .planning.views import ViewEvaluator
+    from .robot import RobotKinematics
+    from .scanning import ScanRenderer
+
+    kin = RobotKinematics(sc.robot.urdf)
+    with tempfile.TemporaryDirectory() as tmp:
+        rend = ScanRenderer(sc, Path(tmp), kin)
+        gt = ground_truth_points(build_object(sc), sc)
+        omap = OccupancyMap.for_scenario(sc)
+        for q in [sc.robot.start, *views]:
+            omap = rend.integrate(omap, rend.scan(np.asarray(q, float)))
+        c0 = coverage(gt, omap.object_points)[0]
+        rng = np.random.default_rng(seed)
+        obst = PlanningObstacles(sc, kin).for_map(omap)
+        cand, _ = StateSampler(sc, kin).generate(rng, omap)
+        cand = cand[obst.free(cand)]
+        ev = ViewEvaluator(kin, sc)
+        if ev.coverage_radius <= 0:
+            ev.coverage_radius = sc.planner.coverage_radius
+        pred = ev.evaluate(omap, cand)[:, K.M_COVER_GAIN]
+        order = np.argsort(-pred, kind="stable")
+        rest = order[n_best:]
+        pick = np.concatenate([order[:n_best], rng.choice(rest, min(n_random, len(rest)), replace=False)])
+        gain = np.array([coverage(gt, rend.integrate(omap, rend.scan(cand[i])).object_points)[0] - c0
+                         for i in pick])
+    p = pred[pick]
+    top = np.argsort(-p, kind="stable")
+    return {"coverage_before": c0, "candidates": int(len(cand)), "rendered": int(len(pick)),
+            "spearman": float(np.corrcoef(_ranks(p), _ranks(gain))[0, 1]),
+            "gain_of_predicted_best": float(gain[top[0]]), "best_gain": float(gain.max()),
+            "mean_gain_of_predicted_top5": float(gain[top[:5]].mean()),
+            "predicted_m2": p.tolist(), "gain": gain.tolist(), "states": cand[pick].tolist()}

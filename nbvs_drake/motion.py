@@ -241,7 +241,8 @@ def detour_waypoints(q0: np.ndarray, q1: np.ndarray, xy_bounds) -> list[np.ndarr
 
 def steer_via(q0: np.ndarray, q1: np.ndarray, w: np.ndarray, rc: RobotConfig) -> list[tuple[str, np.ndarray]]:
     """Control sequences from q0 to q1 whose base drives through the waypoint w (x, y):
-    turn-drive to w, turn-drive-turn to q1 (each leg forward), with the arm moving during the
+    turn-drive-turn to w, facing q1, then turn-drive-turn to q1 (each leg driving forward or
+    backward, whichever turns less, as `steer`'s), with the arm moving during the
     whole base motion ('detour') or tucked for it ('detour_tuck'). Exact under the noise-free
     Euler model, as `steer`'s."""
     q0 = np.asarray(q0, float)

@@ -21,7 +21,9 @@ def _ranks(a: np.ndarray) -> np.ndarray:
 def candidate_gains(sc: Scenario, views=(), n_best: int = 60, n_random: int = 60, seed: int = 123) -> dict:
     """After the scan from the start state and the scans from the robot states `views`, the
     planner's candidates (generation and position filter of planner.n_candidates states) are
-    scored by the view evaluation; the `n_best` predicted best and `n_random` others drawn at
+    scored by the view evaluation, with the coverage gain's model of unknown space
+    (`views.near_surface`) and with the first model, every unknown voxel alike (keys
+    prefixed `uniform_`); the `n_best` predicted best by each and `n_random` others drawn at
     random are rendered. Returns the predicted gains (m^2), the measured gains (share of the
     ground truth newly within 3 mm), their rank correlation (Spearman), and what the view
     predicted best gave against the best measured."""
@@ -47,19 +49,26 @@ def candidate_gains(sc: Scenario, views=(), n_best: int = 60, n_random: int = 60
         obst = PlanningObstacles(sc, kin).for_map(omap)
         cand, _ = StateSampler(sc, kin).generate(rng, omap)
         cand = cand[obst.free(cand)]
-        ev = ViewEvaluator(kin, sc)
-        if ev.coverage_radius <= 0:
-            ev.coverage_radius = sc.planner.coverage_radius
-        pred = ev.evaluate(omap, cand)[:, K.M_COVER_GAIN]
-        order = np.argsort(-pred, kind="stable")
-        rest = order[n_best:]
-        pick = np.concatenate([order[:n_best], rng.choice(rest, min(n_random, len(rest)), replace=False)])
+        preds = {}
+        for model in (True, False):
+            ev = ViewEvaluator(kin, sc)
+            ev.near_surface_model = model
+            if ev.coverage_radius <= 0:
+                ev.coverage_radius = sc.planner.coverage_radius
+            preds[model] = ev.evaluate(omap, cand)[:, K.M_COVER_GAIN]
+        # the n_best of each model, then n_random of the others
+        best = list(dict.fromkeys(np.concatenate([np.argsort(-preds[m], kind="stable")[:n_best]
+                                                  for m in (True, False)]).tolist()))
+        rest = np.setdiff1d(np.arange(len(cand)), best)
+        pick = np.concatenate([best, rng.choice(rest, min(n_random, len(rest)), replace=False)]).astype(int)
         gain = np.array([coverage(gt, rend.integrate(omap, rend.scan(cand[i])).object_points)[0] - c0
                          for i in pick])
-    p = pred[pick]
-    top = np.argsort(-p, kind="stable")
-    return {"coverage_before": c0, "candidates": int(len(cand)), "rendered": int(len(pick)),
-            "spearman": float(np.corrcoef(_ranks(p), _ranks(gain))[0, 1]),
-            "gain_of_predicted_best": float(gain[top[0]]), "best_gain": float(gain.max()),
-            "mean_gain_of_predicted_top5": float(gain[top[:5]].mean()),
-            "predicted_m2": p.tolist(), "gain": gain.tolist(), "states": cand[pick].tolist()}
+    out = {"coverage_before": c0, "candidates": int(len(cand)), "rendered": int(len(pick)),
+           "best_gain": float(gain.max())}
+    for m, tag in ((True, ""), (False, "uniform_")):
+        p = preds[m][pick]
+        top = np.argsort(-p, kind="stable")
+        out |= {f"{tag}spearman": float(np.corrcoef(_ranks(p), _ranks(gain))[0, 1]),
+                f"{tag}gain_of_predicted_best": float(gain[top[0]]),
+                f"{tag}mean_gain_of_predicted_top5": float(gain[top[:5]].mean()), f"{tag}predicted_m2": p.tolist()}
+    return out | {"gain": gain.tolist(), "states": cand[pick].tolist()}

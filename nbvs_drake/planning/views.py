@@ -88,6 +88,9 @@ class ViewEvaluator:
         return dens
 
     _near_of = (None, None)  # (the log-odds it was computed from, near_surface(omap))
+    #: the coverage gain expects new surface only next to known surface (near_surface); False:
+    #: in every unknown voxel alike, the first model (kept for diagnostics.candidate_gains)
+    near_surface_model = True
 
     def _near(self, omap: OccupancyMap):
         """near_surface(omap), once per map (its log-odds are a read-only array, replaced by each scan)."""
@@ -108,9 +111,11 @@ class ViewEvaluator:
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
         if self.coverage_radius > 0:
-            near, near_q = self._near(omap)
             kw.update(density=self._density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
-                      stride=self.stride, near=near, near_q=near_q)
+                      stride=self.stride)
+            if self.near_surface_model:
+                near, near_q = self._near(omap)
+                kw.update(near=near, near_q=near_q)
         return K.evaluate_views(lo, *args, **kw)
 
 

@@ -17,7 +17,7 @@ LAYERS = [
                 "mapping"]),
     ("planning and outputs", ["planning", "plots", "meshcat_draw", "replay", "screenshot", "visual_outputs"]),
     ("systems", ["systems"]),
-    ("mission", ["diagram", "scanning", "wiring", "mission", "bench"]),
+    ("mission", ["diagram", "scanning", "diagnostics", "wiring", "mission", "bench"]),
     ("api", ["api", "experiments"]),
     ("cli", ["cli", ""]),  # "": the package itself (nbvs_drake/__init__.py)
 ]

@@ -23,7 +23,7 @@ def _print_iteration(rec: dict):
     scan = rec.get("scan", {})
     status = plan.get("status", "")
     if status == "ok":
-        what = f"g={plan['utility']:.4f} ({plan['path_kind']}, {plan['n_controls']} controls)"
+        what = f"g={plan['utility']:.3g} ({plan['path_kind']}, {plan['n_controls']} controls)"
     else:
         what = f"stop: {plan.get('stop_reason') or status}"
     print(f"scan {rec['iteration']:2d}  coverage {rec['coverage']:.3f} (5 mm {rec['coverage_5mm']:.3f})  "

@@ -215,7 +215,7 @@ def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np
     return out
 
 
-#: perpendicular offsets (fractions of the start-goal distance) of the waypoints `detours` tries
+#: perpendicular offsets (fractions of the start-goal distance) of the waypoints `detour_waypoints` gives
 DETOUR_OFFSETS = (0.5, 0.75, 0.35)
 
 
@@ -223,7 +223,8 @@ def detour_waypoints(q0: np.ndarray, q1: np.ndarray, xy_bounds) -> list[np.ndarr
     """Base positions (x, y) beside the straight line from q0 to q1, for a path that drives
     around what stands between them (the table between two sides of the object): the
     midpoint moved perpendicular to the line by each of DETOUR_OFFSETS times the distance, on
-    either side, kept within xy_bounds; nearest first."""
+    either side, kept within xy_bounds; in that order (the connection takes the first free
+    path, not the shortest)."""
     p0, p1 = np.asarray(q0[:2], float), np.asarray(q1[:2], float)
     d = p1 - p0
     L = float(np.hypot(*d))

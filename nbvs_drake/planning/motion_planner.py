@@ -126,8 +126,7 @@ class MotionPlanner:
         function's direct paths first (a tree that connects at its first extension); then, with
         planner.detour_steering, paths whose base drives through a waypoint beside the straight
         line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
-        the other); then
-        RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
+        the other); then RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
         dt = self.sc.robot.control_dt
         for kind, controls in steer(q0, q1, self.sc.robot):
             states = rollout(q0, controls, dt)

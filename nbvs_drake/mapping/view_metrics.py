@@ -213,6 +213,17 @@ def _voxel_range(bmin, res, i, j, k, ox, oy, oz):
 
 
 @nb.njit(cache=True, inline="always")
+def _count_near(near, bmin, res, i, j, k, ox, oy, oz, n_near, t_unknown):
+    """An unknown voxel (i, j, k) on a ray: one more near known surface if `near` marks it,
+    and the range of the ray's first such voxel."""
+    if near[i, j, k]:
+        if n_near == 0:
+            t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
+        n_near += 1
+    return n_near, t_unknown
+
+
+@nb.njit(cache=True, inline="always")
 def _cover_gain(density, cov_k, pitch, stride2, t):
     """Covered area (m^2) a ray adds landing at range t on surface of sample density `density`
     (see M_COVER_GAIN)."""
@@ -284,10 +295,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                 while True:
                     Tm |= U64_1 << np.uint64(b)
                     n_unknown += 1
-                    if with_cover and near[i, j, k]:
-                        if n_near == 0:
-                            t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
-                        n_near += 1
+                    if with_cover:
+                        n_near, t_unknown = _count_near(near, bmin, res, i, j, k, ox, oy, oz, n_near, t_unknown)
                     i, j, k, ti, tj, tk, b, st = cell_step(i, j, k, ti, tj, tk, b, si, sj, sk, di, dj, dk,
                                                            bi, bj, bk, wi, wj, wk, t1)
                     if st != 0:
@@ -325,10 +334,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                         Tm |= bit
                         if n_unknown == 1:
                             Fm |= bit
-                        if with_cover and near[i, j, k]:
-                            if n_near == 0:
-                                t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
-                            n_near += 1
+                        if with_cover:
+                            n_near, t_unknown = _count_near(near, bmin, res, i, j, k, ox, oy, oz, n_near, t_unknown)
                         if n_unknown == mu + 1:
                             n_un_rays += 1
                         if h >= 0.0:

@@ -1,12 +1,14 @@
 """The motion planner: collision-free paths from the believed state to a candidate, as exact
-control sequences (the steering function's direct paths, then RRT Ext-Ext, Vasquez-Gomez et
-al. 2017 §7.4), and the path checks the trees use. The obstacles are passed per plan: an
-`ObstacleModel` holds the collision model of one plan's world (the known environment plus
-W_box, or the map's unknown and occupied voxels after a given scan)."""
+control sequences (the steering function's direct paths, optionally paths through a detour
+waypoint, then RRT Ext-Ext, Vasquez-Gomez et al. 2017 §7.4), and the path checks the trees
+use. The obstacles are passed per plan: an `ObstacleModel` holds the collision model of one
+plan's world (the known environment plus W_box, or the map's unknown and occupied voxels after
+a given scan)."""
 
 from __future__ import annotations
 
 import dataclasses as dc
+import itertools
 import time
 
 import numpy as np
@@ -127,19 +129,12 @@ class MotionPlanner:
         planner.detour_steering, paths whose base drives through a waypoint beside the straight
         line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
         the other); then RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
-        dt = self.sc.robot.control_dt
-        for kind, controls in steer(q0, q1, self.sc.robot):
-            states = rollout(q0, controls, dt)
+        rc, p = self.sc.robot, self.sc.planner
+        detours = (s for w in detour_waypoints(q0, q1, rc.xy_bounds) for s in steer_via(q0, q1, w, rc))
+        for kind, controls in itertools.chain(steer(q0, q1, rc), detours if p.detour_steering else ()):
+            states = rollout(q0, controls, rc.control_dt)
             if self.path_free(states, obstacles):
                 return kind, controls, states
-        p = self.sc.planner
-        if p.detour_steering and not obstacles.free(np.asarray(q1, float)[None])[0]:
-            return None
-        for w in detour_waypoints(q0, q1, self.sc.robot.xy_bounds) if p.detour_steering else ():
-            for kind, controls in steer_via(q0, q1, w, self.sc.robot):
-                states = rollout(q0, controls, dt)
-                if self.path_free(states, obstacles):
-                    return kind, controls, states
         if p.rrt_max_nodes > 0 and rng is not None:
             from .rrt import rrt_ext_ext
             res = rrt_ext_ext(q0, q1, self.sc.robot, np.asarray(p.weights), self.sampler.sample_states,

@@ -75,30 +75,27 @@ class ViewEvaluator:
             return self.voxel_sorting_score(omap, q)
         return information(met, metric, un_total, len(self.dirs), omap.spec.res)
 
-    _density_of = (None, None)  # (the object points it was computed from, sample_density)
-
-    def _density(self, omap: OccupancyMap) -> np.ndarray:
-        """sample_density(omap), computed once per set of object points (a map's points are a
-        read-only array, replaced, not changed, by each scan): the expected utility evaluates
-        the rollouts of every candidate against the same map."""
-        src, dens = self._density_of
-        if src is not omap.object_points:
-            dens = sample_density(omap)
-            self._density_of = (omap.object_points, dens)
-        return dens
-
-    _near_of = (None, None)  # (the log-odds it was computed from, near_surface(omap))
     #: the coverage gain expects new surface only next to known surface (near_surface); False:
     #: in every unknown voxel alike, the first model (kept for diagnostics.candidate_gains)
     near_surface_model = True
 
+    def _per_map(self, name: str, src: np.ndarray, compute):
+        """compute(), once per `src` array of a map (a map's arrays are read-only, replaced, not
+        changed, by each scan): the expected utility evaluates the rollouts of every candidate
+        against the same map."""
+        memo = self.__dict__.setdefault("_memo", {})
+        have = memo.get(name)
+        if have is None or have[0] is not src:
+            have = memo[name] = (src, compute())
+        return have[1]
+
+    def _density(self, omap: OccupancyMap) -> np.ndarray:
+        """sample_density(omap), once per set of object points."""
+        return self._per_map("density", omap.object_points, lambda: sample_density(omap))
+
     def _near(self, omap: OccupancyMap):
-        """near_surface(omap), once per map (its log-odds are a read-only array, replaced by each scan)."""
-        src, near = self._near_of
-        if src is not omap.logodds:
-            near = near_surface(omap)
-            self._near_of = (omap.logodds, near)
-        return near
+        """near_surface(omap), once per occupancy grid."""
+        return self._per_map("near", omap.logodds, lambda: near_surface(omap))
 
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray) -> np.ndarray:
         pos = np.ascontiguousarray(X[:, :3, 3])

@@ -64,6 +64,7 @@ def _cmd_experiment(args):
                          + (["--address", args.address] if args.address else []) + ["--out", out]
                          + (["--retry-failed"] if args.retry_failed else [])
                          + (["--table-only"] if args.table_only else [])
+                         + (["--records", args.records] if args.records else [])
                          + [a for o in args.object for a in ("--object", o)])
     ex = make_executor("local" if args.table_only else args.executor, args.jobs, args.address)
     failed = []
@@ -71,7 +72,7 @@ def _cmd_experiment(args):
         for d in defs:
             failed += run_experiment(d, out, quick=args.quick, seeds=args.seeds, executor=ex,
                                      retry_failed=args.retry_failed, command=command,
-                                     table_only=args.table_only)["failed"]
+                                     table_only=args.table_only, records=args.records)["failed"]
     finally:
         ex.close()
     if failed:
@@ -137,6 +138,9 @@ def main(argv=None) -> int:
                         "(default: the report's folder/figures/experiments)")
     e.add_argument("--table-only", action="store_true",
                    help="run nothing: write the table of the runs finished so far (e.g. of a stopped batch)")
+    e.add_argument("--records", default=None, metavar="DIR",
+                   help="run records (small files to keep in git): restore the runs recorded in "
+                        "DIR/NAME/ that OUT lacks before running, record every finished run there")
     e.set_defaults(func=_cmd_experiment)
     args = ap.parse_args(argv)
     try:

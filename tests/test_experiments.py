@@ -170,6 +170,18 @@ figures:
     assert "](figures/experiments/e/cov.png)" in dest.read_text()
     copied = dest.parent / "figures" / "experiments" / "e" / "cov.png"
     assert copied.read_bytes() == (tmp_path / "e" / "cov.png").read_bytes()
+    # a results file with the markers: its hand-written text stays, an experiment whose table
+    # is not in the output folder keeps its section, one that is there replaces its old section
+    hand = dest.parent / "hand.md"
+    hand.write_text("# Results\n\nby hand\n\n<!-- nbvs experiment report: begin -->\n"
+                    "## e: stale\n\nold numbers\n\n## gone: from another machine\n\n| kept |\n"
+                    "### Timings\n\nslow\n<!-- nbvs experiment report: end -->\n\ntail by hand\n")
+    write_report(tmp_path, hand)
+    text = hand.read_text()
+    assert text.startswith("# Results\n\nby hand\n") and text.rstrip().endswith("tail by hand")
+    assert "old numbers" not in text and "| 0.3 | 2/4 | 55 ± 21.213 | 90 |" in text
+    assert "## gone: from another machine\n\n| kept |\n### Timings\n\nslow" in text
+    assert text.count("## e:") == 1 and text.index("## e:") < text.index("## gone:")
 
 
 def _snapshot(runs: Path) -> dict:
@@ -373,3 +385,34 @@ def test_a_finished_run_whose_scenario_changed_since_is_not_taken_as_finished(tm
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and "mapper.prob_hit, planner.top_k" in err[0] and "another --out" in err[0]
     assert (run / "summary.json").is_file()  # nothing removed
+
+
+def test_run_records_continue_a_study_in_another_output_folder(tmp_path):
+    """--records: each finished run is recorded (a small gzipped file without the paths); a
+    batch with the same records and an empty output folder restores the run instead of
+    redoing it and gives the same table; a record made with other settings is refused."""
+    import gzip
+
+    from nbvs_drake.experiments.records import read_record
+    y = tmp_path / "tiny.yaml"
+    y.write_text(TINY.replace("[1, 2]", "[1]"))
+    rec_root = tmp_path / "records"
+    first = _cli(str(y), "--jobs", "1", "--out", str(tmp_path / "a"), "--records", str(rec_root))
+    assert first.returncode == 0, first.stdout + first.stderr
+    f = rec_root / "tiny" / "0.3_s1.json.gz"
+    raw = gzip.decompress(f.read_bytes()).decode()
+    assert len(f.read_bytes()) < 20000 and "executed_path" not in raw and '"candidates"' not in raw
+    rec = read_record(f)
+    assert rec["summary"]["coverage"] > 0 and len(rec["iterations"]) == 2 and rec["run"]["seed"] == 1
+    second = _cli(str(y), "--jobs", "1", "--out", str(tmp_path / "b"), "--records", str(rec_root))
+    assert second.returncode == 0, second.stdout + second.stderr
+    assert "1 restored from" in second.stdout and "0 to run" in second.stdout
+    assert "restored 0.3_s1 from" in (tmp_path / "b" / "tiny" / "runner.log").read_text()
+    a, b = load_table(tmp_path / "a" / "tiny"), load_table(tmp_path / "b" / "tiny")
+    assert comparable(a) == comparable(b) and compared_markdown(a.markdown) == compared_markdown(b.markdown)
+    # a record whose settings differ from the definition's
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(TINY.replace("[1, 2]", "[1]").replace("overlap_h=0.3", "overlap_h=0.35"))
+    third = _cli(str(bad), "--jobs", "1", "--out", str(tmp_path / "c"), "--records", str(rec_root))
+    assert third.returncode != 0 and len(third.stderr.strip().splitlines()) == 1
+    assert "other settings" in third.stderr and "0.3_s1.json.gz" in third.stderr

@@ -65,6 +65,23 @@ def _relink(md: str, src_dir: Path, dest: Path, figures: Path | None = None) -> 
     return re.sub(r"!\[([^\]]*)\]\(([^)]+)\)", sub, md)
 
 
+def _sections(marked: str) -> dict[str, str]:
+    """The experiments' sections of a report's marked part, by experiment folder name (the
+    word before the colon of each "## name: title" heading), each up to the next one."""
+    out, name, lines = {}, None, []
+    for line in marked.splitlines():
+        m = re.match(r"^## ([A-Za-z0-9_.-]+)(?::|$)", line)
+        if m:
+            if name:
+                out[name] = "\n".join(lines).rstrip()
+            name, lines = m.group(1), []
+        if name:
+            lines.append(line)
+    if name:
+        out[name] = "\n".join(lines).rstrip()
+    return out
+
+
 #: where a hand-written results file keeps the generated part (all the rest is left as is)
 BEGIN, END = "<!-- nbvs experiment report: begin -->", "<!-- nbvs experiment report: end -->"
 
@@ -75,7 +92,9 @@ def write_report(out_root, dest, figures=None) -> tuple[Path, list[str]]:
     The tables' figures are copied to `figures` (default: dest's folder/figures/experiments)
     and linked there.
     A dest that holds the BEGIN and END markers keeps everything outside them (the "# Results"
-    heading is then left to the file); otherwise dest is written whole."""
+    heading is then left to the file); otherwise dest is written whole. An experiment whose
+    section the marked part already holds and whose table out_root lacks (run on another
+    machine, its outputs not kept) keeps that section; one in out_root replaces it."""
     out_root, dest = Path(out_root), Path(dest)
     figures = Path(figures) if figures is not None else dest.parent / "figures" / "experiments"
     order = {n: i for i, n in enumerate(definition_names())}
@@ -88,11 +107,15 @@ def write_report(out_root, dest, figures=None) -> tuple[Path, list[str]]:
     if not found:
         from .definition import ExperimentError
         raise ExperimentError(f"no experiment tables (*/table.json) in {out_root}; {dest} left as it is")
+    old = dest.read_text() if dest.is_file() else ""
+    marked = BEGIN in old and END in old.split(BEGIN, 1)[1]
+    kept = _sections(old.split(BEGIN, 1)[1].split(END, 1)[0]) if marked else {}
     parts = ["# Results", "",
              f"Assembled by `nbvs experiment report --out {out_root} --to {dest}` from each experiment's "
              "`table.md`. Each table says which command, at which git commit and on which date, produced it. "
              "`nbvs experiment --list` lists the experiments and their cost.", ""]
     names = []
+    sections = {}
     for d in found:
         t = load_table(d)
         st = t.get("stamp") or {}
@@ -103,11 +126,15 @@ def write_report(out_root, dest, figures=None) -> tuple[Path, list[str]]:
         if st.get("run_commits"):
             stamp += f" *Runs made at:* {st['run_commits']}."
         first, _, rest = md.partition("\n")
-        parts += [first.replace("### ", "## ", 1), "", stamp, rest.replace(TIMINGS_HEADING, "#" + TIMINGS_HEADING), ""]
+        # headed by the folder's name (a quick version's table has the full one's name)
+        title = first.split(":", 1)[1] if ":" in first else ""
+        sections[d.name] = "\n".join([f"## {d.name}:{title}".rstrip(":"), "", stamp,
+                                      rest.replace(TIMINGS_HEADING, "#" + TIMINGS_HEADING)]).rstrip()
         names.append(d.name)
+    for name in sorted(set(sections) | set(kept), key=lambda n: key(Path(n))):
+        parts += [sections.get(name) or kept[name], ""]
     text = "\n".join(parts).rstrip() + "\n"
-    old = dest.read_text() if dest.is_file() else ""
-    if BEGIN in old and END in old.split(BEGIN, 1)[1]:  # only the marked part is ours
+    if marked:  # only the marked part is ours
         head, rest = old.split(BEGIN, 1)
         text = head + BEGIN + "\n" + text.split("\n", 1)[1].lstrip("\n") + END + rest.split(END, 1)[1]
     dest.parent.mkdir(parents=True, exist_ok=True)

@@ -353,6 +353,12 @@ class Batch:
         self.done = self.fail = 0
         self.bar = None
         self.progress = progress
+        self.records: Path | None = None  #: run records' folder (`records.py`), or None
+
+    def record(self, spec: RunSpec):
+        if self.records is not None:
+            from .records import SUFFIX, write_record
+            write_record(self.final(spec), self.records / f"{spec.run_id}{SUFFIX}")
 
     # ---- the lock: one batch per experiment folder (released by the kernel on any death)
     def lock(self):
@@ -397,6 +403,7 @@ class Batch:
             shutil.rmtree(final)
         os.rename(tmp, final)
         self.failed_path(spec).unlink(missing_ok=True)
+        self.record(spec)
         s = json.loads((final / "summary.json").read_text())
         self.done += 1
         line = (f"{spec.run_id}: coverage {s.get('coverage', 0):.3f} after {s.get('scans')} scans, "
@@ -460,17 +467,19 @@ def scenario_drift(spec: RunSpec, run_dir: Path) -> list[str]:
 
 def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, jobs: int | None = None,
                    executor="local", address: str | None = None, retry_failed: bool = False,
-                   command: str = "", progress: bool = True, table_only: bool = False) -> dict:
+                   command: str = "", progress: bool = True, table_only: bool = False, records=None) -> dict:
     """Runs what is missing of one experiment into out_root/<name>[_quick]/ and writes its
     table (`table_only`: runs nothing, the table of the runs finished so far, e.g. of a batch
     that was stopped). `executor`: "local", "ray" or an executor from `make_executor` (left open, for
-    several experiments on one Ray session). Returns {"table", "dir", "ran", "skipped",
-    "failed" (the run ids that failed, now or before)}."""
+    several experiments on one Ray session). `records`: a run records' folder (`records.py`):
+    the runs recorded in records/<name>[_quick]/ that the output folder lacks are restored
+    first, and every finished run is recorded there. Returns {"table", "dir", "ran",
+    "skipped", "restored", "failed" (the run ids that failed, now or before)}."""
     if isinstance(executor, str):
         ex = make_executor(executor, jobs, address)
         try:
             return run_experiment(defn, out_root, quick=quick, seeds=seeds, executor=ex, retry_failed=retry_failed,
-                                  command=command, progress=progress, table_only=table_only)
+                                  command=command, progress=progress, table_only=table_only, records=records)
         finally:
             ex.close()
     from .aggregate import write_table
@@ -481,6 +490,7 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
     batch.lock()
     batch.clean_partials()
     specs = expand(r)
+    restored = _restore_records(batch, specs, records, exp_dir.name)
     todo, skipped, failed_before = [], [], []
     for spec in specs:
         final = batch.final(spec)
@@ -503,6 +513,8 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
                     f"remove it or use another --out")
             skipped.append(spec)
             batch.event(f"skipped {spec.run_id} (finished)")
+            if batch.records is not None and not (batch.records / f"{spec.run_id}.json.gz").is_file():
+                batch.record(spec)
         elif batch.failed_path(spec).is_file() and not retry_failed:
             failed_before.append(spec)
             batch.event(f"skipped {spec.run_id} (failed before; --retry-failed reruns it)")
@@ -513,7 +525,8 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
     import yaml
     (exp_dir / "definition.yaml").write_text(yaml.safe_dump({k: v for k, v in r.items() if not k.startswith("_")},
                                                             sort_keys=False, allow_unicode=True))
-    head = (f"{r['name']}{' (quick)' if quick else ''}: {len(specs)} runs, {len(skipped)} finished before, "
+    head = (f"{r['name']}{' (quick)' if quick else ''}: {len(specs)} runs, {len(skipped)} finished before"
+            f"{f' ({restored} restored from {batch.records})' if restored else ''}, "
             f"{len(failed_before)} failed before, {len(todo)} to run on {ex.describe()} -> {exp_dir}")
     batch.event(f"batch: {head}; command: {command}")
     print(head, flush=True)
@@ -535,4 +548,33 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
     print(f"{r['name']}: {table['runs_finished']} of {table['runs_expected']} runs finished "
           f"({batch.done} now, {len(skipped)} skipped), {len(failed_now)} failed -> {exp_dir / 'table.md'}",
           flush=True)
-    return {"table": table, "dir": exp_dir, "ran": batch.done, "skipped": len(skipped), "failed": failed_now}
+    return {"table": table, "dir": exp_dir, "ran": batch.done, "skipped": len(skipped), "restored": restored,
+            "failed": failed_now}
+
+
+def _restore_records(batch: Batch, specs, records, folder: str) -> int:
+    """Restores the recorded runs (records/<folder>/<run>.json.gz) that batch's folder lacks;
+    sets batch.records. A record made with other settings than its spec is refused, as a
+    run folder is. Returns the number restored."""
+    if records is None:
+        return 0
+    from .records import SUFFIX, read_record, restore
+    batch.records = Path(records) / folder
+    n = 0
+    for spec in specs:
+        src = batch.records / f"{spec.run_id}{SUFFIX}"
+        if (batch.final(spec) / "summary.json").is_file() or not src.is_file():
+            continue
+        rec = read_record(src)
+        run = rec.get("run") or {}
+        key = {"scenario": run.get("scenario"), "seed": run.get("seed"), "overrides": run.get("overrides")}
+        if key != spec.key():
+            raise ExperimentError(f"run record {src} was made with other settings ({key}) than this definition "
+                                  f"asks ({spec.key()}); remove it or use other --records")
+        if batch.final(spec).exists():
+            shutil.rmtree(batch.final(spec))
+        restore(rec, batch.final(spec), src)
+        batch.failed_path(spec).unlink(missing_ok=True)
+        batch.event(f"restored {spec.run_id} from {src}")
+        n += 1
+    return n

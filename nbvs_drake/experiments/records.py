@@ -1,0 +1,88 @@
+"""Run records: what a finished run's table cell needs (run.json, summary.json, scenario.yaml
+and iterations.jsonl without the planned and executed paths and the candidates), one gzipped
+JSON file per run, `RECORDS/<experiment>[_quick]/<run>.json.gz`, small enough to keep in git
+(~10 kB for a 25-scan run). `nbvs experiment NAME --records RECORDS` restores the recorded
+runs that its output folder lacks before it runs anything (so a study that outgrows one
+machine or one session is continued elsewhere, from a checkout, without redoing a run) and
+records every finished run, each file written whole (temporary file, then rename).
+
+A restored run's folder holds those four files only (no model, map or replay) and its
+run.json says `restored_from`; the table is built from them as from the run's own folder."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import shutil
+from pathlib import Path
+
+FORMAT = 1
+SUFFIX = ".json.gz"
+#: the bulky parts of an iteration record that no table uses (states and candidates)
+DROPPED = ("executed_path",)
+DROPPED_PLAN = ("path", "candidates")
+
+
+def _compact(rec: dict) -> dict:
+    rec = {k: v for k, v in rec.items() if k not in DROPPED}
+    if isinstance(rec.get("plan"), dict):
+        rec["plan"] = {k: v for k, v in rec["plan"].items() if k not in DROPPED_PLAN}
+    return rec
+
+
+def record_of(run_dir: Path) -> dict:
+    """The record of a finished run folder (summary.json is there)."""
+    d = Path(run_dir)
+    it = d / "iterations.jsonl"
+    sc = d / "scenario.yaml"
+    rj = d / "run.json"
+    return {"format": FORMAT,
+            "run": json.loads(rj.read_text()) if rj.is_file() else {},
+            "summary": json.loads((d / "summary.json").read_text()),
+            "scenario_yaml": sc.read_text() if sc.is_file() else None,
+            "iterations": [_compact(json.loads(x)) for x in it.read_text().splitlines() if x.strip()]
+            if it.is_file() else []}
+
+
+def _write_atomic(path: Path, data: bytes):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def write_record(run_dir: Path, dest: Path) -> Path:
+    """Writes the record of run_dir to dest (gzip without a timestamp: the same run gives the
+    same bytes)."""
+    raw = json.dumps(record_of(run_dir), separators=(",", ":"), sort_keys=True).encode()
+    _write_atomic(Path(dest), gzip.compress(raw, compresslevel=9, mtime=0))
+    return Path(dest)
+
+
+def read_record(path: Path) -> dict:
+    from .definition import ExperimentError
+    try:
+        rec = json.loads(gzip.decompress(Path(path).read_bytes()))
+    except (OSError, ValueError, EOFError) as e:
+        raise ExperimentError(f"run record {path} is unreadable ({e})") from None
+    if not isinstance(rec, dict) or rec.get("format") != FORMAT or "summary" not in rec:
+        raise ExperimentError(f"run record {path} is not a run record of format {FORMAT}")
+    return rec
+
+
+def restore(rec: dict, final: Path, source: Path) -> Path:
+    """Writes a record as the finished run folder `final`: into a temporary sibling, renamed
+    once complete (a run's folder appears complete or not at all)."""
+    final = Path(final)
+    tmp = final.with_name(f"{final.name}.partial-restore-{os.getpid()}")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir(parents=True)
+    (tmp / "run.json").write_text(json.dumps(dict(rec.get("run") or {}, restored_from=str(source)), indent=1))
+    if rec.get("scenario_yaml") is not None:
+        (tmp / "scenario.yaml").write_text(rec["scenario_yaml"])
+    (tmp / "iterations.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rec.get("iterations") or []))
+    (tmp / "summary.json").write_text(json.dumps(rec["summary"], indent=1))
+    os.rename(tmp, final)
+    return final

@@ -34,9 +34,12 @@ def listing() -> str:
         cost = d.get("cost") or {}
         q, f = cost.get("quick_run_s"), cost.get("full_run_s")
         lines.append(f"{name:13s} {d.get('paper', '')}, {d.get('reference', '')}: {d.get('title', '')}")
-        lines.append(f"{'':13s} full: {full} runs x ~{_fmt_s(f)} (estimated from probe runs on the same machine; "
-                     f"cost.full_basis in the definition) = ~{_fmt_s(f * full)} of run time, "
-                     f"~{_fmt_s(f * full / 2)} of wall time with --jobs 2" if f
+        kind = {"measured": "measured: the mean of the full runs", "derived": "derived from measured full runs"}.get(
+            cost.get("full_kind"), "estimated from probe runs on the same machine")
+        jobs = int(cost.get("jobs", 2))
+        lines.append(f"{'':13s} full: {full} runs x ~{_fmt_s(f)} ({kind}; cost.full_basis in the definition) = "
+                     f"~{_fmt_s(f * full)} of run time, ~{_fmt_s(f * full / jobs)} of wall time on 2 cores "
+                     f"(--jobs {jobs})" if f
                      else f"{'':13s} full: {full} runs, cost per run not measured")
         lines.append(f"{'':13s} quick: {quick} runs, {_fmt_s(q)} per run (measured)" if q else
                      f"{'':13s} quick: {quick} runs")

@@ -497,9 +497,7 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
         if (final / "summary.json").is_file():
             rj = final / "run.json"
             if rj.is_file():
-                have = json.loads(rj.read_text())
-                have_key = {"scenario": have.get("scenario"), "seed": have.get("seed"),
-                            "overrides": have.get("overrides")}
+                have_key = _run_key(json.loads(rj.read_text()))
                 if have_key != spec.key():
                     raise ExperimentError(
                         f"{final} was run with other settings ({have_key}) than this definition asks "
@@ -552,6 +550,11 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             "failed": failed_now}
 
 
+def _run_key(run: dict) -> dict:
+    """What identifies the run in a run.json, as RunSpec.key()."""
+    return {"scenario": run.get("scenario"), "seed": run.get("seed"), "overrides": run.get("overrides")}
+
+
 def _restore_records(batch: Batch, specs, records, folder: str) -> int:
     """Restores the recorded runs (records/<folder>/<run>.json.gz) that batch's folder lacks;
     sets batch.records. A record made with other settings than its spec is refused, as a
@@ -566,8 +569,7 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
         if (batch.final(spec) / "summary.json").is_file() or not src.is_file():
             continue
         rec = read_record(src)
-        run = rec.get("run") or {}
-        key = {"scenario": run.get("scenario"), "seed": run.get("seed"), "overrides": run.get("overrides")}
+        key = _run_key(rec.get("run") or {})
         if key != spec.key():
             raise ExperimentError(f"run record {src} was made with other settings ({key}) than this definition "
                                   f"asks ({spec.key()}); remove it or use other --records")

@@ -355,10 +355,14 @@ class Batch:
         self.progress = progress
         self.records: Path | None = None  #: run records' folder (`records.py`), or None
 
+    def record_path(self, spec: RunSpec) -> Path:
+        from .records import SUFFIX
+        return self.records / f"{spec.run_id}{SUFFIX}"
+
     def record(self, spec: RunSpec):
         if self.records is not None:
-            from .records import SUFFIX, write_record
-            write_record(self.final(spec), self.records / f"{spec.run_id}{SUFFIX}")
+            from .records import write_record
+            write_record(self.final(spec), self.record_path(spec))
 
     # ---- the lock: one batch per experiment folder (released by the kernel on any death)
     def lock(self):
@@ -511,7 +515,7 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
                     f"remove it or use another --out")
             skipped.append(spec)
             batch.event(f"skipped {spec.run_id} (finished)")
-            if batch.records is not None and not (batch.records / f"{spec.run_id}.json.gz").is_file():
+            if batch.records is not None and not batch.record_path(spec).is_file():
                 batch.record(spec)
         elif batch.failed_path(spec).is_file() and not retry_failed:
             failed_before.append(spec)
@@ -561,11 +565,11 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
     run folder is. Returns the number restored."""
     if records is None:
         return 0
-    from .records import SUFFIX, read_record, restore
+    from .records import read_record, restore
     batch.records = Path(records) / folder
     n = 0
     for spec in specs:
-        src = batch.records / f"{spec.run_id}{SUFFIX}"
+        src = batch.record_path(spec)
         if (batch.final(spec) / "summary.json").is_file() or not src.is_file():
             continue
         rec = read_record(src)

@@ -59,16 +59,19 @@ def test_tree_paths_and_costs():
 def test_nearest_is_the_argmin_of_the_weighted_distance():
     """The numba nearest-vertex search picks numpy's argmin of weighted_dist, ties and the
     wrapped angle included."""
+    from nbvs_drake.config import PlannerConfig
     rng = np.random.default_rng(3)
-    for n in (1, 2, 17, 500):
-        for rounded in (False, True):
-            t = Tree(np.zeros(8), n)
-            for _ in range(n - 1):
-                q = rng.normal(size=8) * 3
-                t.add(0, np.round(q, 1) if rounded else q, np.zeros((0, 7)), 0.0)
-            for _ in range(20):
-                q = rng.normal(size=8) * 3
-                assert t.nearest(q, W) == int(np.argmin(weighted_dist(t.q[: t.n], q, W)))
+    for w in (W, np.asarray(PlannerConfig().weights)):  # the default: the base's x, y dominate
+        for n in (1, 2, 17, 500):
+            for rounded in (False, True):
+                t = Tree(np.zeros(8), n)
+                for _ in range(n - 1):
+                    q = rng.normal(size=8) * 3
+                    t.add(0, np.round(q, 1) if rounded else q, np.zeros((0, 7)), 0.0)
+                for _ in range(20):
+                    q = rng.normal(size=8) * 3
+                    q = np.round(q, 1) if rounded else q
+                    assert t.nearest(q, w) == int(np.argmin(weighted_dist(t.q[: t.n], q, w)))
 
 
 def test_tree_edges_are_the_first_steering_sequence():

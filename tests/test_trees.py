@@ -46,6 +46,17 @@ def test_rrt_finds_a_path_around_a_wall_and_its_controls_reach_the_goal():
     assert states[:, 1].max() > 1.0  # it went around the end of the wall
 
 
+def test_rrt_gives_up_when_neither_tree_can_grow():
+    """Start and goal in pockets that no extension leaves: the search stops after its
+    iteration budget (20 x max_nodes) instead of running for ever."""
+    rc = Scenario().robot
+    q0 = np.array([-1.0, 0.0, 0.0, 0, 1.2, 0, 0, 0])
+    q1 = np.array([1.0, 0.0, np.pi, 0, 1.2, 0, 0, 0])
+    res = rrt_ext_ext(q0, q1, rc, W, _sampler, lambda states: False, lambda q: q, np.random.default_rng(0),
+                      max_nodes=50, step=1.5)
+    assert not res.found and res.vertices == 2 and res.iterations == 20 * 50
+
+
 def test_tree_paths_and_costs():
     t = Tree(np.zeros(8), 10)
     a = t.add(0, np.ones(8), np.zeros((3, 7)), 2.0)

@@ -35,7 +35,7 @@ def listing() -> str:
         q, f = cost.get("quick_run_s"), cost.get("full_run_s")
         lines.append(f"{name:13s} {d.get('paper', '')}, {d.get('reference', '')}: {d.get('title', '')}")
         kind = {"measured": "measured: the mean of the full runs", "derived": "derived from measured full runs"}.get(
-            cost.get("full_kind"), "estimated from probe runs on the same machine")
+            cost.get("full_kind"), "estimated from runs on the same machine")
         jobs = int(cost.get("jobs", 2))
         lines.append(f"{'':13s} full: {full} runs x ~{_fmt_s(f)} ({kind}; cost.full_basis in the definition) = "
                      f"~{_fmt_s(f * full)} of run time, ~{_fmt_s(f * full / jobs)} of wall time on 2 cores "

@@ -114,8 +114,9 @@ def write_report(out_root, dest, figures=None) -> tuple[Path, list[str]]:
     marked = BEGIN in old and END in old.split(BEGIN, 1)[1]
     kept = _sections(old.split(BEGIN, 1)[1].split(END, 1)[0]) if marked else {}
     parts = ["# Results", "",
-             f"Assembled by `nbvs experiment report --out {out_root} --to {dest}` from each experiment's "
-             "`table.md`. Each table says which command, at which git commit and on which date, produced it. "
+             f"Assembled by `nbvs experiment report --to {dest}` from each experiment's `table.md` (an "
+             "experiment whose table was not in the `--out` of the last call keeps its earlier section). Each "
+             "table says which command, at which git commit and on which date, produced it. "
              "`nbvs experiment --list` lists the experiments and their cost.", ""]
     names = []
     sections = {}

@@ -54,7 +54,7 @@ def test_rrt_gives_up_when_neither_tree_can_grow():
     q1 = np.array([1.0, 0.0, np.pi, 0, 1.2, 0, 0, 0])
     res = rrt_ext_ext(q0, q1, rc, W, _sampler, lambda states: False, lambda q: q, np.random.default_rng(0),
                       max_nodes=50, step=1.5)
-    assert not res.found and res.vertices == 2 and res.iterations == 20 * 50
+    assert not res.found and res.vertices == 2 and res.iterations == 20 * 50  # ITERATIONS_PER_VERTEX x max_nodes
 
 
 def test_tree_paths_and_costs():

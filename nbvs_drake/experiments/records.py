@@ -74,8 +74,9 @@ def read_record(path: Path) -> dict:
 def restore(rec: dict, final: Path, source: Path) -> Path:
     """Writes a record as the finished run folder `final`: into a temporary sibling, renamed
     once complete (a run's folder appears complete or not at all)."""
+    from .runner import PARTIAL  # a leftover is cleaned with the batch's other partial folders
     final = Path(final)
-    tmp = final.with_name(f"{final.name}.partial-restore-{os.getpid()}")
+    tmp = final.with_name(f"{final.name}{PARTIAL}restore-{os.getpid()}")
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)

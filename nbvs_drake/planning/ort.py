@@ -18,7 +18,7 @@ from ..motion import rollout
 from .candidates import StateSampler
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
-from .rrt import Tree, extend_batch
+from .rrt import ITERATIONS_PER_VERTEX, Tree, extend_batch
 from .utility import select_best
 from .views import ViewEvaluator, registration_overlap
 
@@ -44,8 +44,9 @@ class ORTPlanner:
         it = 0
         targets = self.sampler.targets(rng)
         paths_free = lambda paths: self.motion.tree_paths_free(paths, obstacles)  # noqa: E731
-        while tree.n < p.ort_vertices + 1 and it < 20 * p.ort_vertices:
-            b = min(p.ort_batch, 20 * p.ort_vertices - it)
+        budget = ITERATIONS_PER_VERTEX * p.ort_vertices
+        while tree.n < p.ort_vertices + 1 and it < budget:
+            b = min(p.ort_batch, budget - it)
             it += b
             batch = np.stack([next(targets) for _ in range(b)])
             extend_batch(tree, batch, p.tree_step, w, self.sc.robot, paths_free, self.sampler.kin.clip_arm)

@@ -21,6 +21,9 @@ from ..config import RobotConfig
 from ..motion import rollout, steer_together, wrap_angle
 
 StateSampler = Callable[[np.random.Generator, int], np.ndarray]
+
+#: a tree search gives up after this many iterations (extension attempts) per vertex it may grow
+ITERATIONS_PER_VERTEX = 20
 PathFree = Callable[[np.ndarray], bool]
 
 
@@ -165,13 +168,13 @@ def rrt_ext_ext(q_start: np.ndarray, q_goal: np.ndarray, rc: RobotConfig, w: np.
     first's new vertex. When the two new vertices are within `connect_tol` (weighted metric)
     and the steering edge between them is free, the path start -> ... -> a -> b -> ... -> goal
     is returned with its controls (edges of the goal tree are re-steered in the travel
-    direction and re-checked). Gives up after max_nodes vertices or 20 x max_nodes
-    iterations (as the ORT's growth): two trees in pockets that no extension leaves would
-    otherwise never stop."""
+    direction and re-checked). Gives up after max_nodes vertices or ITERATIONS_PER_VERTEX x
+    max_nodes iterations (as the ORT's growth): two trees in pockets that no extension
+    leaves would otherwise never stop."""
     ta, tb = Tree(q_start, max_nodes), Tree(q_goal, max_nodes)
     a_is_start = True
     it = 0
-    while ta.n + tb.n < max_nodes and it < 20 * max_nodes:
+    while ta.n + tb.n < max_nodes and it < ITERATIONS_PER_VERTEX * max_nodes:
         it += 1
         target_tree = tb if rng.random() < goal_bias else None
         q_rand = target_tree.q[0] if target_tree is not None else sample(rng, 1)[0]

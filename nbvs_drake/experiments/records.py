@@ -71,12 +71,11 @@ def read_record(path: Path) -> dict:
     return rec
 
 
-def restore(rec: dict, final: Path, source: Path) -> Path:
-    """Writes a record as the finished run folder `final`: into a temporary sibling, renamed
-    once complete (a run's folder appears complete or not at all)."""
-    from .runner import PARTIAL  # a leftover is cleaned with the batch's other partial folders
-    final = Path(final)
-    tmp = final.with_name(f"{final.name}{PARTIAL}restore-{os.getpid()}")
+def restore(rec: dict, final: Path, source: Path, tmp: Path) -> Path:
+    """Writes a record as the finished run folder `final`: into the temporary folder `tmp`
+    (named by the caller, so the runner cleans a leftover with its other partial folders),
+    renamed once complete (a run's folder appears complete or not at all)."""
+    final, tmp = Path(final), Path(tmp)
     if tmp.exists():
         shutil.rmtree(tmp)
     tmp.mkdir(parents=True)

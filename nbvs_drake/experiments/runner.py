@@ -579,7 +579,8 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
                                   f"asks ({spec.key()}); remove it or use other --records")
         if batch.final(spec).exists():
             shutil.rmtree(batch.final(spec))
-        restore(rec, batch.final(spec), src)
+        final = batch.final(spec)
+        restore(rec, final, src, final.with_name(f"{final.name}{PARTIAL}restore-{os.getpid()}"))
         batch.failed_path(spec).unlink(missing_ok=True)
         batch.event(f"restored {spec.run_id} from {src}")
         n += 1

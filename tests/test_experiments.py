@@ -416,3 +416,20 @@ def test_run_records_continue_a_study_in_another_output_folder(tmp_path):
     third = _cli(str(bad), "--jobs", "1", "--out", str(tmp_path / "c"), "--records", str(rec_root))
     assert third.returncode != 0 and len(third.stderr.strip().splitlines()) == 1
     assert "other settings" in third.stderr and "0.3_s1.json.gz" in third.stderr
+    # the same run asked for by another experiment (its own name and label, the settings in
+    # another order): restored from tiny's record, and recorded as its own
+    other = tmp_path / "other.yaml"
+    other.write_text(TINY.replace("name: tiny", "name: other").replace("[1, 2]", "[1]")
+                     .replace("set: [mission.max_scans=2, planner.n_candidates=600,",
+                              "set: [planner.overlap_h=0.3, planner.n_candidates=600, mission.max_scans=2,")
+                     .replace('{label: "0.3", set: [planner.overlap_h=0.3]}', '{label: same, set: []}'))
+    fourth = _cli(str(other), "--jobs", "1", "--out", str(tmp_path / "d"), "--records", str(rec_root))
+    assert fourth.returncode == 0, fourth.stdout + fourth.stderr
+    assert "1 restored from" in fourth.stdout and "0 to run" in fourth.stdout
+    run = json.loads((tmp_path / "d" / "other" / "runs" / "same_s1" / "run.json").read_text())
+    assert run["shared_from"] == "tiny/0.3_s1.json.gz" and run["run_id"] == "same_s1"
+    assert read_record(rec_root / "other" / "same_s1.json.gz")["summary"] == rec["summary"]
+    # a different run (another seed) is not taken for it
+    fifth = _cli(str(other), "--seeds", "2", "--jobs", "1", "--out", str(tmp_path / "d"), "--records", str(rec_root),
+                 "--table-only")
+    assert fifth.returncode == 0 and "restored" not in fifth.stdout, fifth.stdout + fifth.stderr

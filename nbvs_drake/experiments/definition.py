@@ -76,6 +76,27 @@ class RunSpec:
     def to_json(self) -> dict:
         return dc.asdict(self)
 
+    def resolve(self):
+        """The scenario this run runs (its scenario with its seed and overrides)."""
+        from ..config import load_scenario
+        return load_scenario(self.scenario, seed=self.seed, settings=self.overrides)
+
+
+def settings_of(sc) -> dict:
+    """A scenario's fields as {dotted name: value}, base_dir left out (it names the checkout
+    the run was made in, not the run): two runs with equal settings are the same run."""
+    def flat(d, pre=""):
+        out = {}
+        for k, v in d.items():
+            if isinstance(v, dict):
+                out.update(flat(v, f"{pre}{k}."))
+            else:
+                out[pre + k] = v
+        return out
+    out = flat(dc.asdict(sc))
+    out.pop("base_dir", None)
+    return out
+
 
 _LABEL_OK = re.compile(r"[^A-Za-z0-9.+-]+")
 

@@ -86,3 +86,47 @@ def restore(rec: dict, final: Path, source: Path, tmp: Path) -> Path:
     (tmp / "summary.json").write_text(json.dumps(rec["summary"], indent=1))
     os.rename(tmp, final)
     return final
+
+
+def settings_key(sc) -> str:
+    """A scenario's settings (`definition.settings_of`) as one string, for lookups."""
+    from .definition import settings_of
+    return json.dumps(settings_of(sc), sort_keys=True, default=str)
+
+
+class RecordIndex:
+    """The records of a records folder by the settings of the runs they hold (`settings_key`
+    of each record's scenario.yaml), read once on the first lookup: a run that one experiment
+    recorded is found by another whose definition asks for the same run (the ORT paper's
+    VUV runs at 20 x 10^3 vertices are a level of ort_vs_rs, metrics and ort_size alike)."""
+
+    def __init__(self, root: Path):
+        self.root = Path(root)
+        self._by_key: dict[str, list[Path]] | None = None
+        self.unreadable: list[str] = []
+
+    def _build(self) -> dict[str, list[Path]]:
+        import tempfile
+
+        from ..config import load_scenario
+        from ..errors import NbvsError
+        out: dict[str, list[Path]] = {}
+        with tempfile.TemporaryDirectory() as tmp:
+            f = Path(tmp) / "scenario.yaml"
+            for path in sorted(self.root.glob(f"*/*{SUFFIX}")):
+                try:
+                    text = read_record(path).get("scenario_yaml")
+                    if text is None:
+                        continue
+                    f.write_text(text)
+                    out.setdefault(settings_key(load_scenario(f)), []).append(path)
+                except NbvsError as e:  # ExperimentError, ScenarioError: not a lookup's business
+                    self.unreadable.append(f"{path}: {e}")
+        return out
+
+    def find(self, sc, exclude: Path | None = None) -> Path | None:
+        """A record (not under `exclude`) of a run whose settings equal those of scenario sc."""
+        if self._by_key is None:
+            self._by_key = self._build()
+        hits = [p for p in self._by_key.get(settings_key(sc), []) if exclude is None or p.parent != Path(exclude)]
+        return hits[0] if hits else None

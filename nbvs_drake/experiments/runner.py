@@ -436,16 +436,6 @@ class Batch:
             print(line, flush=True)
 
 
-def _flat(d, pre=""):
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f"{pre}{k}."))
-        else:
-            out[pre + k] = v
-    return out
-
-
 def scenario_drift(spec: RunSpec, run_dir: Path) -> list[str]:
     """The scenario fields (dotted names) in which a finished run's scenario.yaml differs from
     the scenario its spec resolves to now; [] when they agree or the run has no scenario.yaml.
@@ -453,10 +443,9 @@ def scenario_drift(spec: RunSpec, run_dir: Path) -> list[str]:
     overrides alone do not tell a stale run. The old file is read with today's schema: a field
     added since takes its default, and flags the run only where the scenario now sets it
     otherwise."""
-    import dataclasses as dc
-
     from ..config import load_scenario
     from ..errors import NbvsError
+    from .definition import settings_of
     f = Path(run_dir) / "scenario.yaml"
     if not f.is_file():
         return []
@@ -464,9 +453,8 @@ def scenario_drift(spec: RunSpec, run_dir: Path) -> list[str]:
         was = load_scenario(f)
     except NbvsError as e:
         return [f"scenario.yaml unreadable: {e}"]
-    now = load_scenario(spec.scenario, seed=spec.seed, settings=spec.overrides)
-    a, b = _flat(dc.asdict(was)), _flat(dc.asdict(now))
-    return sorted(k for k in a.keys() | b.keys() if k not in ("base_dir",) and a.get(k) != b.get(k))
+    a, b = settings_of(was), settings_of(spec.resolve())
+    return sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
 
 
 def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, jobs: int | None = None,
@@ -560,28 +548,42 @@ def _run_key(run: dict) -> dict:
 
 
 def _restore_records(batch: Batch, specs, records, folder: str) -> int:
-    """Restores the recorded runs (records/<folder>/<run>.json.gz) that batch's folder lacks;
-    sets batch.records. A record made with other settings than its spec is refused, as a
-    run folder is. Returns the number restored."""
+    """Restores the recorded runs that batch's folder lacks, and sets batch.records: each
+    run's own record (records/<folder>/<run>.json.gz), or else the record of the same run made
+    by another experiment (equal settings, `records.RecordIndex`), which is then also recorded
+    as this experiment's. A record of its own made with other settings than its spec is
+    refused, as a run folder is. Returns the number restored."""
     if records is None:
         return 0
-    from .records import read_record, restore
+    from .records import RecordIndex, read_record, restore
     batch.records = Path(records) / folder
+    index = RecordIndex(Path(records))
     n = 0
     for spec in specs:
         src = batch.record_path(spec)
-        if (batch.final(spec) / "summary.json").is_file() or not src.is_file():
+        if (batch.final(spec) / "summary.json").is_file():
             continue
+        shared = not src.is_file()
+        if shared:
+            src = index.find(spec.resolve(), exclude=batch.records)
+            if src is None:
+                continue
         rec = read_record(src)
+        if shared:  # the run this spec asks for, made under another experiment's name
+            rec["run"] = dict(rec.get("run") or {}, **spec.to_json(), shared_from=f"{src.parent.name}/{src.name}")
         key = _run_key(rec.get("run") or {})
         if key != spec.key():
             raise ExperimentError(f"run record {src} was made with other settings ({key}) than this definition "
                                   f"asks ({spec.key()}); remove it or use other --records")
-        if batch.final(spec).exists():
-            shutil.rmtree(batch.final(spec))
         final = batch.final(spec)
+        if final.exists():
+            shutil.rmtree(final)
         restore(rec, final, src, final.with_name(f"{final.name}{PARTIAL}restore-{os.getpid()}"))
         batch.failed_path(spec).unlink(missing_ok=True)
+        if shared:
+            batch.record(spec)
         batch.event(f"restored {spec.run_id} from {src}")
         n += 1
+    for line in index.unreadable:
+        batch.event(f"record not used: {line}")
     return n

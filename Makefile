@@ -18,7 +18,7 @@ run: setup
 	$(VENV)/bin/nbvs reconstruct --out $(OUT) --overwrite
 
 test: setup
-	$(VENV)/bin/python -m pytest -q -m "not slow"
+	$(VENV)/bin/python -m pytest -q -m "not slow" --durations=20
 
 lint: setup
 	$(VENV)/bin/ruff check nbvs_drake tests scripts benchmarks

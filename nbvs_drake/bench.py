@@ -254,6 +254,46 @@ def bench_prediction(objects=("teapot", "bunny"), seed: int = 1, n_best: int = 6
     return out
 
 
+def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3000) -> dict:
+    """Collision checks with the free-space certificate (planning/clearance.py) against Drake
+    alone, in the same run and with the same verdicts: random states of the default scene
+    (W_box as the obstacle) and of the cluttered room (us per state, the share the
+    certificate proves free), and the Object Reconstruction Tree's growth from the default
+    start (the same tree; seconds)."""
+    from .planning.motion_planner import MotionPlanner, ObstacleModel
+    from .planning.ort import ORTPlanner
+    out = {}
+    kin = RobotKinematics()
+    for name in ("default", "cluttered_room"):
+        sc = load_scenario(name)
+        fast, drake = CollisionModel(sc, kin), CollisionModel(sc, kin, certificate=False)
+        qs = StateSampler(sc, kin).sample_states(np.random.default_rng(seed), n_states)
+        verdict = fast.free(qs)
+        assert np.array_equal(verdict, drake.free(qs)), "the certificate changed a verdict"
+        proved = fast.certificate.free(qs)
+        t_drake = _best_of(lambda m=drake, q=qs: m.free(q, parallelize=False), 2)
+        t_fast = _best_of(lambda m=fast, q=qs: m.free(q, parallelize=False), 2)
+        out[f"states_{name}_us"] = {"drake": 1e6 * t_drake / len(qs), "certified": 1e6 * t_fast / len(qs),
+                                    "speedup": t_drake / t_fast, "free": float(verdict.mean()),
+                                    "proved_free": float(proved.mean())}
+    sc = load_scenario()
+    sc.planner.ort_vertices = ort_vertices
+    sampler = StateSampler(sc, kin)
+    motion = MotionPlanner(sc, kin, sampler)
+    ort = ORTPlanner(sc, sampler, None, None, motion, None, 0.0)
+    times, trees = {}, {}
+    for label, cert in (("drake", False), ("certified", True)):
+        obstacles = ObstacleModel(CollisionModel(sc, kin, certificate=cert))
+        t = time.perf_counter()
+        trees[label], _ = ort.grow(np.array(sc.robot.start, float), np.random.default_rng(seed), obstacles)
+        times[label] = time.perf_counter() - t
+    a, b = trees["drake"], trees["certified"]
+    assert a.n == b.n and np.array_equal(a.q[: a.n], b.q[: b.n]), "the certificate changed the tree"
+    out["ort_growth_s"] = {"drake": times["drake"], "certified": times["certified"],
+                           "speedup": times["drake"] / times["certified"], "vertices": a.n - 1}
+    return out
+
+
 def main(args) -> int:
     if args.what == "visibility":
         res = bench_visibility(n_views=args.views)
@@ -261,6 +301,8 @@ def main(args) -> int:
         res = bench_planning()
     elif args.what == "motion":
         res = bench_motion()
+    elif args.what == "collision":
+        res = bench_collision()
     elif args.what == "prediction":
         res = bench_prediction()
     else:

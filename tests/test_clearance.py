@@ -1,0 +1,86 @@
+"""The free-space certificate in front of Drake's collision checks (planning/clearance.py):
+its forward kinematics is Drake's, it never calls a state free that Drake finds in collision
+or in collision that Drake finds free
+(random states and states within ~1e-6 of a contact, in every kind of world the planner and
+the executed-motion checks build), and it does prove most free states free."""
+
+import numpy as np
+import pytest
+from conftest import random_states
+
+from nbvs_drake.config import load_scenario
+from nbvs_drake.objects import build_object
+from nbvs_drake.planning.clearance import COLLIDING, FREE, ROBOT_BODIES
+from nbvs_drake.planning.collision import CollisionModel
+
+
+def _drake(model, q):
+    return np.asarray(model.checker.CheckConfigsCollisionFree(list(model.kin.to_positions(q)), parallelize=False),
+                      bool)
+
+
+def _near_contacts(model, q, free, n_pairs=150, steps=24):
+    """States on the free side of a contact, within 2^-steps of the segment between a free and
+    a colliding state (bisection with Drake's verdicts)."""
+    a, b = q[free][:n_pairs], q[~free][:n_pairs]
+    m = min(len(a), len(b))
+    a, b = a[:m].copy(), b[:m].copy()
+    for _ in range(steps):
+        mid = 0.5 * (a + b)
+        ok = _drake(model, mid)
+        a[ok], b[~ok] = mid[ok], mid[~ok]
+    return a
+
+
+def test_forward_kinematics_is_drakes(kin):
+    model = CollisionModel(load_scenario(), kin)
+    plant = model.diagram.plant()
+    ctx = plant.CreateDefaultContext()
+    for q in random_states(kin, 12, seed=3):
+        plant.SetPositions(ctx, kin.to_positions(q[None])[0])
+        T = model.certificate.body_poses(q)
+        for k, name in enumerate(ROBOT_BODIES):
+            X = plant.EvalBodyPoseInWorld(ctx, plant.GetBodyByName(name)).GetAsMatrix4()
+            np.testing.assert_allclose(T[k], X, atol=1e-12)
+
+
+def _worlds(kin, tmp_path, first_scan_map):
+    sc = load_scenario()
+    yield "W_box", CollisionModel(sc, kin)
+    yield "cluttered room", CollisionModel(load_scenario("cluttered_room"), kin)
+    yield "true object (mesh), padded", CollisionModel(
+        sc, kin, object_obj=str(build_object(sc).write_obj(tmp_path / "object.obj")), padding=0.01)
+    sc1, omap = first_scan_map
+    yield "map boxes", CollisionModel(sc1, kin, obstacle_boxes=omap.obstacle_boxes(300)[0])
+
+
+def test_the_certificate_never_frees_a_state_drake_finds_in_collision(kin, tmp_path, first_scan_map):
+    for name, model in _worlds(kin, tmp_path, first_scan_map):
+        assert model.certificate is not None, name
+        q = random_states(kin, 4000, seed=11)
+        free = _drake(model, q)
+        edge = _near_contacts(model, q, free)
+        q_all = np.concatenate([q, edge, _near_contacts(model, q[::-1], free[::-1])])
+        drake = _drake(model, q_all)
+        verdict = model.certificate.classify(q_all)
+        cert, hit = verdict == FREE, verdict == COLLIDING
+        assert not np.any(cert & ~drake), f"{name}: {int(np.sum(cert & ~drake))} states certified but in collision"
+        assert not np.any(hit & drake), f"{name}: {int(np.sum(hit & drake))} states proved colliding but free"
+        np.testing.assert_array_equal(model.free(q_all), drake, err_msg=name)
+        # and it is worth having: most free random states are proved free without Drake
+        assert cert[: len(q)].sum() >= 0.7 * free.sum(), f"{name}: {cert[:len(q)].sum()} of {free.sum()}"
+        assert hit[: len(q)].sum() >= 0.3 * (~free).sum(), f"{name}: {hit[:len(q)].sum()} of {(~free).sum()}"
+        assert 0.1 < free.mean() < 0.95, name  # the worlds have both free and colliding states
+
+
+@pytest.mark.parametrize("q_case", ["folded arm", "table", "clear"])
+def test_known_states_keep_their_verdicts(kin, q_case):
+    """The collision tests' hand-made states (tests/test_collision.py), with and without the
+    certificate."""
+    q = {"folded arm": [-1.6, 1.0, 0.0, 0.0, 0.5, -2.2, -2.0, 0.0],
+         "table": [-0.5, 0.0, 0.0, 0, 0.0, 0, 0, 0],
+         "clear": [-1.6, 1.0, 0.3, 0, 0.4, -0.3, -0.3, 0]}[q_case]
+    sc = load_scenario()
+    with_cert, without = CollisionModel(sc, kin), CollisionModel(sc, kin, certificate=False)
+    assert without.certificate is None
+    assert with_cert.free(np.array(q))[0] == without.free(np.array(q))[0] == (q_case == "clear")

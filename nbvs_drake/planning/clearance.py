@@ -1,10 +1,13 @@
 """A free-space certificate in front of Drake's collision checks: a numba kernel that proves a
-robot state collision free from a conservative model of the robot's collision geometry, so that
-Drake (`SceneGraphCollisionChecker`) is asked only about the states it cannot prove free.
+robot state collision free (or in collision) from conservative models of the robot's collision
+geometry, so that Drake (`SceneGraphCollisionChecker`) is asked only about the states it cannot
+decide.
 
 The verdicts are Drake's: a state is reported free without Drake only when every pair that
 Drake would check is separated by more than its padding plus `EPS` in the conservative model,
-where Drake would find it free too; every other state goes to Drake. The model:
+where Drake would find it free too; it is reported in collision only when a ball inside a robot
+cylinder reaches more than `EPS` into an environment Box that Drake checks it against; every
+other state goes to Drake. The model of the free test:
 
 - each robot collision cylinder whose axis stays vertical for every state (the PatrolBot's body
   and pedestal, the Katana's first link) is kept exact, and is tested exactly against an
@@ -17,7 +20,7 @@ where Drake would find it free too; every other state goes to Drake. The model:
 - robot pairs that the checker filters (adjacent links) are skipped, as Drake skips them.
 
 Most states of a tree or a rollout are far from the table, the walls and W_box, and each costs
-~1 us here against ~25-190 us in Drake (`nbvs bench collision`).
+a few us here against ~25-200 us in Drake (`nbvs bench collision`).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ import math
 
 import numba as nb
 import numpy as np
+
+from ..robot import _X
 
 #: a pair counts as separated only beyond its padding plus this margin (m): rounding of the two
 #: forward kinematics (this module's and Drake's) is ~1e-15 m
@@ -37,10 +42,6 @@ ROBOT_BODIES = ("base_link", "katana_link1", "katana_link2", "katana_link3", "ka
 class Unsupported(Exception):
     """The robot or the environment has geometry this model does not cover (the collision model
     then asks Drake about every state)."""
-
-
-def _X(rt) -> np.ndarray:
-    return np.asarray(rt.GetAsMatrix4())
 
 
 def _cylinder_spheres(r: float, length: float):
@@ -68,20 +69,21 @@ def _env_box(shape, X_WG: np.ndarray):
 
 
 class FreeCertificate:
-    """The conservative model of one collision checker's world (`CollisionModel`): `free(q)`
-    is True for the states (N, 8) it proves collision free (False: ask Drake)."""
+    """The conservative models of one collision checker's world (`CollisionModel`):
+    `classify(q)` gives each state (N, 8) FREE, COLLIDING or UNKNOWN (ask Drake)."""
 
     def __init__(self, diagram, checker, kin):
-        from pydrake.geometry import Cylinder, Sphere
+        from pydrake.geometry import Box, Cylinder, Sphere
+
+        from ..robot import ARM_JOINTS  # kin.joint_fixed holds their (X_PF, axis): base_link -> ... -> link5
         plant, sg = diagram.plant(), diagram.scene_graph()
         inspector = sg.model_inspector()
         bodies = [plant.GetBodyByName(n) for n in ROBOT_BODIES]
-        from ..robot import ARM_JOINTS  # kin.joint_fixed holds their (X_PF, axis): base_link -> ... -> link5
         for i, jn in enumerate(ARM_JOINTS):
             j = plant.GetJointByName(jn)
             if j.parent_body().name() != ROBOT_BODIES[i] or j.child_body().name() != ROBOT_BODIES[i + 1]:
                 raise Unsupported(f"joint {jn} is not between {ROBOT_BODIES[i]} and {ROBOT_BODIES[i + 1]}")
-        robot_index = {b.index(): k for k, b in enumerate(bodies)}
+        robot_index = {b.index() for b in bodies}
         instance = bodies[0].model_instance()
         for bi in range(plant.num_bodies()):
             b = plant.get_body(_body_index(bi))
@@ -123,7 +125,6 @@ class FreeCertificate:
         self.s_in = np.array(s_in)  #: radius of the ball about each sphere's centre inside the geometry
         self.X_PF = np.array([X for X, _ in kin.joint_fixed])
         self.axes = np.array([a / np.linalg.norm(a) for _, a in kin.joint_fixed])
-        self.X_L5C = kin.X_L5C
         # cylinders whose axis stays vertical: checked at random states (the set of states where
         # a chain of rotations keeps an axis vertical is all of them or of measure zero)
         rng = np.random.default_rng(0)
@@ -133,7 +134,6 @@ class FreeCertificate:
         R = np.stack([self.geometry_poses(q)[:, :3, 2] for q in qs])  # (16, G, 3) axes
         self.g_vert = np.array(g_cyl, bool) & np.all(np.abs(R[:, :, 2]) > 1 - 1e-12, axis=0)
         world = plant.world_body()
-        from pydrake.geometry import Box
         e_R, e_p, e_h, e_pad, e_exact = [], [], [], [], []
         for gid in plant.GetCollisionGeometriesForBody(world):
             R_, p_, h_ = _env_box(inspector.GetShape(gid), _X(inspector.GetPoseInFrame(gid)))

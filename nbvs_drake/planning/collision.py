@@ -11,6 +11,7 @@ import numpy as np
 from ..config import Scenario
 from ..robot import RobotKinematics, add_robot
 from ..scene import add_environment
+from .clearance import FREE, UNKNOWN, FreeCertificate, Unsupported
 
 
 class CollisionModel:
@@ -40,13 +41,10 @@ class CollisionModel:
         #: geometry the certificate does not model)
         self.certificate = None
         if certificate:
-            from .clearance import FreeCertificate, Unsupported
             try:
                 self.certificate = FreeCertificate(self.diagram, self.checker, kin)
             except Unsupported:
                 pass
-        #: states decided by the certificate (proved free or in collision) / by Drake, so far
-        self.n_certified = self.n_drake = 0
 
     def free(self, q: np.ndarray, parallelize: bool = True) -> np.ndarray:
         """Boolean (N,) collision-free flags for states (N, 8)."""
@@ -56,11 +54,8 @@ class CollisionModel:
         if self.certificate is None:
             out, todo = np.zeros(len(q), bool), np.arange(len(q))
         else:
-            from .clearance import FREE, UNKNOWN
             verdict = self.certificate.classify(q)
             out, todo = verdict == FREE, np.flatnonzero(verdict == UNKNOWN)
-        self.n_certified += len(q) - len(todo)
-        self.n_drake += len(todo)
         if len(todo) == 0:
             return out
         pos = self.kin.to_positions(q[todo])

@@ -6,7 +6,6 @@ during the run), model.ply, map.npz, coverage.png."""
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import numpy as np
 
 from .config import Scenario
 from .diagram import build_mission_diagram
+from .files import write_atomic
 from .mapping.occupancy import write_ply
 from .systems.mission_recorder import IterationLog
 
@@ -33,9 +33,7 @@ def _print_iteration(rec: dict):
 
 
 def _write_json(path: Path, obj):
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2))
-    os.replace(tmp, path)
+    write_atomic(path, json.dumps(obj, indent=2))
 
 
 def pose_errors(records: list[dict]) -> dict:

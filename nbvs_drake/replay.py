@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .files import write_atomic
 from .mapping.occupancy import OccupancyMap
 from .meshcat_draw import (
     COLLISION_RGBA,
@@ -231,9 +232,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     meshcat.PublishRecording()
     html = _with_seek_script(meshcat.StaticHtml())
     out_path = Path(out_path)
-    tmp = out_path.with_suffix(out_path.suffix + ".tmp")
-    tmp.write_text(html)
-    tmp.replace(out_path)
+    write_atomic(out_path, html)
     info = {"bytes": out_path.stat().st_size, "duration_s": round(t, 2), "robot_frames": n_frames,
             "maps": len(n_voxels), "unknown_points": int(sum(u for u, _ in n_voxels)),
             "occupied_points": int(sum(o for _, o in n_voxels)), "collision_shown": show_hit,

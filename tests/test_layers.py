@@ -12,7 +12,7 @@ PACKAGE = Path(nbvs_drake.__file__).resolve().parent
 
 #: layer of each module (the longest matching prefix decides), lowest first
 LAYERS = [
-    ("foundation", ["errors", "state", "resources", "config"]),
+    ("foundation", ["errors", "files", "state", "resources", "config"]),
     ("models", ["motion", "sensor", "scene", "robot", "objects", "evaluation", "pose", "registration",
                 "mapping"]),
     ("planning and outputs", ["planning", "plots", "meshcat_draw", "replay", "screenshot", "visual_outputs"]),

@@ -13,12 +13,12 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import math
-import os
 import subprocess
 from pathlib import Path
 
 import numpy as np
 
+from ..files import write_atomic
 from .definition import cell_label, cells, expand
 
 #: table.json sections that depend on the machine, the executor or the clock
@@ -551,15 +551,11 @@ def write_table(r: dict, exp_dir, stamp: dict | None = None) -> dict:
     figures = draw_figures(r, table, exp_dir)
     table["figures"] = figures
     md = markdown(r, table, figures)
-    _atomic_write(exp_dir / "table.json", json.dumps(table, indent=1, allow_nan=False))
-    _atomic_write(exp_dir / "table.md", md)
+    write_atomic(exp_dir / "table.json", json.dumps(table, indent=1, allow_nan=False))
+    write_atomic(exp_dir / "table.md", md)
     return table
 
 
-def _atomic_write(path: Path, text: str):
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 class Table(dict):

@@ -17,6 +17,8 @@ import os
 import shutil
 from pathlib import Path
 
+from ..files import write_atomic
+
 FORMAT = 1
 SUFFIX = ".json.gz"
 #: the bulky parts of an iteration record that no table uses (states and candidates)
@@ -45,18 +47,13 @@ def record_of(run_dir: Path) -> dict:
             if it.is_file() else []}
 
 
-def _write_atomic(path: Path, data: bytes):
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
 
 
 def write_record(run_dir: Path, dest: Path) -> Path:
     """Writes the record of run_dir to dest (gzip without a timestamp: the same run gives the
     same bytes)."""
     raw = json.dumps(record_of(run_dir), separators=(",", ":"), sort_keys=True).encode()
-    _write_atomic(Path(dest), gzip.compress(raw, compresslevel=9, mtime=0))
+    write_atomic(dest, gzip.compress(raw, compresslevel=9, mtime=0), mkdir=True)
     return Path(dest)
 
 

@@ -9,6 +9,7 @@ import re
 import shutil
 from pathlib import Path
 
+from ..files import write_atomic
 from .aggregate import TIMINGS_HEADING, load_table
 from .definition import definition_names, expand, load_definition, resolve
 
@@ -141,8 +142,5 @@ def write_report(out_root, dest, figures=None) -> tuple[Path, list[str]]:
     if marked:  # only the marked part is ours
         head, rest = old.split(BEGIN, 1)
         text = head + BEGIN + "\n" + text.split("\n", 1)[1].lstrip("\n") + END + rest.split(END, 1)[1]
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, dest)
+    write_atomic(dest, text, mkdir=True)
     return dest, names

@@ -35,6 +35,7 @@ import time
 import traceback
 from pathlib import Path
 
+from ..files import write_atomic
 from .definition import ExperimentError, RunSpec, expand, resolve
 
 PARTIAL = ".partial-"
@@ -420,9 +421,7 @@ class Batch:
             shutil.rmtree(tmp, ignore_errors=True)
         rec = {"run_id": spec.run_id, "spec": spec.to_json(), "error": error, "traceback": tb,
                "exitcode": exitcode, "log": str(self.log_path(spec)), "executor": self.executor.name, "date": _now()}
-        tmp_f = self.failed_path(spec).with_suffix(".tmp")
-        tmp_f.write_text(json.dumps(rec, indent=1))
-        os.replace(tmp_f, self.failed_path(spec))
+        write_atomic(self.failed_path(spec), json.dumps(rec, indent=1))
         self.fail += 1
         self.event(f"FAILED {spec.run_id}: {error}")
         self._say(f"{spec.run_id}: FAILED ({error}; log {self.log_path(spec)})")

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import dataclasses as dc
 import math
-import os
 
 import numpy as np
 
 from ..config import MapperConfig, Scenario
+from ..files import write_atomic
 from .raycast import integrate_scan
 from .voxel import FREE, OCCUPIED, UNKNOWN, classes_grid
 
@@ -221,10 +221,7 @@ class OccupancyMap:
 def write_ply(path, points: np.ndarray):
     """Binary little-endian PLY of xyz float32 points (written atomically)."""
     pts = np.ascontiguousarray(points, dtype="<f4")
-    tmp = f"{path}.tmp"
-    with open(tmp, "wb") as f:
-        f.write(("ply\nformat binary_little_endian 1.0\n"
-                 f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
-                 "end_header\n").encode())
-        f.write(pts.tobytes())
-    os.replace(tmp, path)
+    header = ("ply\nformat binary_little_endian 1.0\n"
+              f"element vertex {len(pts)}\nproperty float x\nproperty float y\nproperty float z\n"
+              "end_header\n").encode()
+    write_atomic(path, header + pts.tobytes())

@@ -9,10 +9,9 @@ class are pruned into a leaf, as OctoMap's prune() does.
 
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
+from ..files import write_atomic
 from .occupancy import OccupancyMap
 from .voxel import FREE, OCCUPIED
 
@@ -77,8 +76,5 @@ def write_bt(omap: OccupancyMap, path) -> int:
     header = ("# Octomap OcTree binary file\n"
               "# (feel free to add / change comments, but leave the first line as it is!)\n#\n"
               f"id OcTree\nsize {n}\nres {omap.spec.res:g}\ndata\n").encode()
-    tmp = f"{path}.tmp"
-    with open(tmp, "wb") as f:
-        f.write(header + data)
-    os.replace(tmp, path)
+    write_atomic(path, header + data)
     return n

@@ -47,8 +47,6 @@ def record_of(run_dir: Path) -> dict:
             if it.is_file() else []}
 
 
-
-
 def write_record(run_dir: Path, dest: Path) -> Path:
     """Writes the record of run_dir to dest (gzip without a timestamp: the same run gives the
     same bytes)."""

@@ -332,3 +332,19 @@ def test_surface_metric_and_overlap_count_the_expected_returns(planner, first_sc
     ov = registration_overlap(met)
     oc, new = met[:, K.M_OC_RAYS], met[:, K.M_NEW_EXPECTED]
     np.testing.assert_allclose(ov[oc + new > 0], (oc / (oc + new))[oc + new > 0])
+
+
+def test_surface_factor_ranks_views_as_vuv(planner, first_scan_map):
+    """Vasquez-Gomez et al. 2017's surface factor (eq. 6, un_o / un_total) and the ORT paper's
+    VUV are the same count over the same constant, so they order every view alike (why the
+    metrics experiment has no surface-factor level); FIG, an entropy sum, orders them otherwise."""
+    from nbvs_drake.planning.views import information
+    _, omap = first_scan_map
+    states, _ = planner.generator.generate(np.random.default_rng(7), omap)
+    met = planner.evaluator.evaluate(omap, states[:300])
+    un_total = omap.unknown_count()
+    sur, vuv = information(met, "sur", un_total), information(met, "vuv", un_total)
+    np.testing.assert_array_equal(sur, vuv)
+    assert sur.max() > 0 and np.array_equal(np.argsort(-sur, kind="stable"), np.argsort(-vuv, kind="stable"))
+    fig = information(met, "fig", un_total)
+    assert not np.allclose(fig / fig.max(), sur / sur.max())

@@ -345,6 +345,6 @@ def test_surface_factor_ranks_views_as_vuv(planner, first_scan_map):
     un_total = omap.unknown_count()
     sur, vuv = information(met, "sur", un_total), information(met, "vuv", un_total)
     np.testing.assert_array_equal(sur, vuv)
-    assert sur.max() > 0 and np.array_equal(np.argsort(-sur, kind="stable"), np.argsort(-vuv, kind="stable"))
+    assert sur.max() > 0
     fig = information(met, "fig", un_total)
     assert not np.allclose(fig / fig.max(), sur / sur.max())

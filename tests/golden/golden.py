@@ -22,6 +22,12 @@ RUNS = {
     "teapot_eu_mu_4": ("teapot_eu_mu", 1, ("mission.max_scans=4",)),
 }
 
+#: floats agree when equal to this relative tolerance: numpy's SIMD kernels sum in an order
+#: that differs between CPUs (seen: teapot_eu_mu_4's expected utility, a weighted sum of 500
+#: rollouts, differed in its last digit, 0.002559765005301889 against ...894, on one machine
+#: of this workplace); any change of the planner moves the numbers far more than this
+FLOAT_REL_TOL = 1e-9
+
 #: simulated (not wall-clock) durations whose names end in _s
 _SIMULATED = {"sim_time_s", "motion_sim_s"}
 
@@ -66,13 +72,6 @@ def differences(golden, new, path="") -> list[str]:
         same = math.isclose(golden, new, rel_tol=FLOAT_REL_TOL, abs_tol=0.0)
         return [] if same else [f"{path}: {golden!r} != {new!r}"]
     return [] if golden == new else [f"{path}: {golden!r} != {new!r}"]
-
-
-#: floats agree when equal to this relative tolerance: numpy's SIMD kernels sum in an order
-#: that differs between CPUs (seen: teapot_eu_mu_4's expected utility, a weighted sum of 500
-#: rollouts, differed in its last digit, 0.002559765005301889 against ...894, on one machine
-#: of this workplace); any change of the planner moves the numbers far more than this
-FLOAT_REL_TOL = 1e-9
 
 
 #: keys renamed on purpose since the files were written, (parent key, old name) -> new name

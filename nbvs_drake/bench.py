@@ -119,11 +119,12 @@ def _octomap_peer(scan, res, dirs, X_view) -> dict:
             "octomap_version": getattr(pyoctomap, "__version__", "")}
 
 
-def bench_planning(seed: int = 0) -> dict:
+def bench_planning(seed: int = 0, clutter: bool = True) -> dict:
     """One planning step on the default scene after its first scan: random sampling with
     10,000 candidates (DU), ORT with k = 10,000 (grown in batches, and one extension at a
     time for the ratio), the expected utility with k = 500 over the
-    kept candidates (Table 4 noise), and Drake configuration checks per second."""
+    kept candidates (Table 4 noise), and Drake configuration checks per second; `clutter`:
+    the motion planners in the cluttered room (`bench_clutter`)."""
     import copy
     sc = load_scenario()
     kin = RobotKinematics(sc.robot.urdf)
@@ -161,6 +162,95 @@ def bench_planning(seed: int = 0) -> dict:
     qs = StateSampler(sc, kin).sample_states(np.random.default_rng(seed), 20_000)
     t = _best_of(lambda: cm.free(qs), 2)
     out["config_checks_per_s"] = len(qs) / t
+    if clutter:
+        out["clutter"] = bench_clutter()
+    return out
+
+
+#: the clutter benchmark's planners: (name, planner.motion_planner, bulk checks)
+CLUTTER_PLANNERS = (("rrt_ext_ext_before", "rrt_ext_ext", False), ("rrt_ext_ext", "rrt_ext_ext", True),
+                    ("roadmap", "roadmap", True))
+
+
+def clutter_scan_states(sc, kin, cm, seed: int = 7) -> np.ndarray:
+    """Four fixed scan states of the cluttered room: the scenario's start, then free states
+    that look at W_box from 1.0-1.4 m, the closest to 270, 0 and 90 degrees around the table
+    (a fixed draw: the same states in every run)."""
+    sampler = StateSampler(sc, kin)
+    q = sampler.sample_states(np.random.default_rng(seed), 20_000)
+    r = np.hypot(q[:, 0], q[:, 1])
+    q = q[(r > 1.0) & (r < 1.4) & sampler.looks_at_wbox(q)]
+    q = q[cm.free(q)]
+    ang = np.arctan2(q[:, 1], q[:, 0])
+    out = [np.array(sc.robot.start, float)]
+    for a in (-np.pi / 2, 0.0, np.pi / 2):
+        out.append(q[np.argmin(np.abs(np.angle(np.exp(1j * (ang - a)))))])
+    return np.stack(out)
+
+
+def bench_clutter(seed: int = 1, rrt_max_nodes: int = 10_000, eu_samples: int = 500,
+                  planners=CLUTTER_PLANNERS) -> dict:
+    """Plans in the cluttered room (Vasquez-Gomez et al. 2017 Fig. 13, the bunny, Table 4 noise)
+    from fixed maps and beliefs: after 1 scan (from the start) and after 4 (fixed scan states,
+    `clutter_scan_states`, the belief at the last). Each planner of CLUTTER_PLANNERS makes the
+    DU plan and the EU plan (k rollouts) of both maps with the same candidates (the same plan
+    seed), as one mission would (its roadmap kept from the first map to the second).
+    Per planner: mean motion planning per plan (the path search and every collision check, the
+    EU rollouts' included), mean whole plan, candidates reached, eq. 8 path length over the
+    goals every planner reached, collision checks, their seconds and Drake's share."""
+    import copy
+    base = load_scenario("cluttered_room", settings=["scene.object.kind=bunny", "scene.object.size=-1",
+                                                     f"planner.rrt_max_nodes={rrt_max_nodes}",
+                                                     f"planner.eu_samples={eu_samples}"])
+    kin = RobotKinematics(base.robot.urdf)
+    states = clutter_scan_states(base, kin, CollisionModel(base, kin))
+    maps = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        r = ScanRenderer(base, Path(tmp), kin)
+        omap = OccupancyMap.for_scenario(base)
+        for i, q in enumerate(states):
+            omap = r.integrate(omap, r.scan(q))
+            if i + 1 in (1, 4):
+                maps[i + 1] = omap  # integrate returns a new map
+    out = {"scene": "cluttered_room, bunny, Table 4 noise; maps after 1 and 4 scans from fixed states",
+           "scan_states": np.round(states, 4).tolist(), "rrt_max_nodes": rrt_max_nodes, "eu_samples": eu_samples}
+    lengths = {}
+    for name, mp, bulk_checks in planners:
+        res = {}
+        for utility in ("du", "eu"):
+            sc = copy.deepcopy(base)
+            sc.planner.motion_planner, sc.planner.utility = mp, utility
+            cm = CollisionModel(sc, kin)
+            planner = make_planner(sc, kin, cm, bulk_checks=bulk_checks)
+            motion, plan, reached, tried = [], [], 0, 0
+            for n_scans, omap in maps.items():
+                q0 = states[n_scans - 1]
+                t = time.perf_counter()
+                pr = planner.plan(PlanRequest(omap, q0, np.random.default_rng(seed)))
+                plan.append(time.perf_counter() - t)
+                motion.append(pr.times.get("motion_planning_s", 0.0))
+                reached += pr.stages.get("with_path", 0)
+                tried += pr.stages.get("motion_tried", 0)
+            res[f"{utility}_motion_s"] = float(np.mean(motion))
+            res[f"{utility}_plan_s"] = float(np.mean(plan))
+            res[f"{utility}_reached"] = f"{reached} of {tried}"
+            for k, v in cm.check_stats().items():
+                res[f"{utility}_{k}"] = v
+            if utility == "du":
+                lengths[name] = {g.tobytes(): rho for g, rho in planner.motion.path_log}
+        res["reached"] = int(sum(np.isfinite(v) for v in lengths[name].values()))
+        res["collision_checks"] = res["du_collision_checks"] + res["eu_collision_checks"]
+        res["collision_check_s"] = res["du_collision_check_s"] + res["eu_collision_check_s"]
+        res["drake_queries"] = res["du_drake_queries"] + res["eu_drake_queries"]
+        out[name] = res
+    both = [g for g in lengths["roadmap"] if all(np.isfinite(lengths[n].get(g, np.nan)) for n in lengths)]
+    for name in lengths:
+        out[name]["path_length"] = float(np.mean([lengths[name][g] for g in both])) if both else None
+    out["goals_reached_by_all"] = len(both)
+    before = out.get("rrt_ext_ext_before")
+    for u in ("du", "eu") if before is not None and "rrt_ext_ext" in out and "roadmap" in out else ():
+        out[f"speedup_{u}"] = before[f"{u}_motion_s"] / max(out["roadmap"][f"{u}_motion_s"], 1e-9)
+        out[f"bulk_speedup_{u}"] = before[f"{u}_motion_s"] / max(out["rrt_ext_ext"][f"{u}_motion_s"], 1e-9)
     return out
 
 

@@ -164,6 +164,17 @@ class PlannerConfig:
     #: RRT Ext-Ext nodes when no direct steering path reaches a candidate (Table 1: 10^4);
     #: 0: direct steering paths only
     rrt_max_nodes: int = 10000
+    #: how the plan's paths to its top candidates are found: "rrt_ext_ext" (Vasquez-Gomez et al.
+    #: 2017 §7.4, as the paper ran it: direct steering, then detours when detour_steering, then
+    #: one RRT Ext-Ext per candidate with up to rrt_max_nodes vertices, one candidate after the
+    #: other) or "roadmap" (planning/roadmap.py: direct steering, then one lazy search of a roadmap
+    #: kept for the whole mission for all remaining candidates at once, shortcut; detours only
+    #: for the candidates the roadmap does not reach; rrt_max_nodes is not used)
+    motion_planner: str = "rrt_ext_ext"
+    #: roadmap: free states sampled when the first plan needs the roadmap (it grows by
+    #: roadmap.GROWTH_SAMPLES around each candidate it does not reach)
+    roadmap_vertices: int = 1500
+    roadmap_neighbors: int = 10  #: roadmap: edges to this many nearest vertices (eq. 8 metric)
     #: when no direct steering path reaches a candidate, try paths whose base drives through a
     #: waypoint beside the straight line (motion.steer_via: around the table to the object's
     #: far side) before the RRT; false: the papers' direct steering and RRT Ext-Ext only
@@ -414,6 +425,10 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.ort_vertices >= 2, f"planner.ort_vertices must be >= 2, got {p.ort_vertices}")
     _require(p.ort_batch >= 1, f"planner.ort_batch must be >= 1, got {p.ort_batch}")
     _require(p.tree_step > 0, f"planner.tree_step must be > 0, got {p.tree_step}")
+    _require(p.motion_planner in ("rrt_ext_ext", "roadmap"),
+             f"planner.motion_planner must be 'rrt_ext_ext' or 'roadmap', got {p.motion_planner!r}")
+    _require(p.roadmap_vertices >= 10, f"planner.roadmap_vertices must be >= 10, got {p.roadmap_vertices}")
+    _require(p.roadmap_neighbors >= 2, f"planner.roadmap_neighbors must be >= 2, got {p.roadmap_neighbors}")
     _require(p.rrt_max_nodes >= 0, f"planner.rrt_max_nodes must be >= 0, got {p.rrt_max_nodes}")
     _require(p.n_candidates > 0, f"planner.n_candidates must be > 0, got {p.n_candidates}")
     _require(_finite(p.overlap_h) and 0 <= p.overlap_h <= 1,

@@ -9,10 +9,11 @@ from __future__ import annotations
 from .interface import Planner, PlanRequest, PlanResult  # noqa: F401
 
 
-def make_planner(sc, kin, wbox_model=None) -> "Planner":
+def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True) -> "Planner":
     """The strategy the scenario selects (planner.strategy), with the utility it selects
     (planner.utility). wbox_model: an existing CollisionModel of the known environment with
-    W_box (built when None and needed)."""
+    W_box (built when None and needed). bulk_checks False: paths are checked as before the bulk
+    kernels (`nbvs bench planning`'s baseline)."""
     from .candidates import StateSampler
     from .motion_planner import MotionPlanner, PlanningObstacles
     from .utility import make_utility
@@ -22,7 +23,7 @@ def make_planner(sc, kin, wbox_model=None) -> "Planner":
     sampler = StateSampler(sc, kin)
     evaluator = ViewEvaluator(kin, sc)
     obstacles = PlanningObstacles(sc, kin, wbox_model)
-    motion = MotionPlanner(sc, kin, sampler)
+    motion = MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks)
     overlap_h = None if p.strategy == "view_sampling" else p.overlap_h
     utility = make_utility(sc, evaluator, motion, overlap_h)
     if p.strategy in ("view_circle", "random_views"):

@@ -158,6 +158,10 @@ class FreeCertificate:
                     pads.append(checker.GetPaddingBetween(ba, bc))
         self.pairs = np.array(pairs, np.int64).reshape(-1, 2)
         self.pair_pad = np.array(pads, float)
+        #: the arrays the numba kernels take, in their order (`_classify_one`)
+        self.model = (self.X_PF, self.axes, self.g_body, self.g_X, self.g_vert, self.g_r, self.g_h, self.g_bound,
+                      self.g_pad, _sphere_starts(self.s_geom, len(self.g_body)), self.s_geom, self.s_c, self.s_rho,
+                      self.s_in, self.e_R, self.e_p, self.e_h, self.e_zal, self.e_exact, self.pairs, self.pair_pad)
 
     def geometry_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WG (G, 4, 4) of the robot's collision geometries at the state q (8,)."""
@@ -174,14 +178,20 @@ class FreeCertificate:
         than EPS) or UNKNOWN (ask Drake)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
         out = np.full(len(q), UNKNOWN, np.int8)
-        _certify(q, self.X_PF, self.axes, self.g_body, self.g_X, self.g_vert, self.g_r, self.g_h, self.g_bound,
-                 self.g_pad, self.s_geom, self.s_c, self.s_rho, self.s_in, self.e_R, self.e_p, self.e_h, self.e_zal,
-                 self.e_exact, self.pairs, self.pair_pad, out)
+        _certify(q, self.model, out)
         return out
 
     def free(self, q: np.ndarray) -> np.ndarray:
         """True for the states (N, 8) proved collision free."""
         return self.classify(q) == FREE
+
+    def clearance(self, q: np.ndarray) -> np.ndarray:
+        """(N, 2) for states (N, 8): [d, R] of `_clearance_one` (a lower bound of the distance to
+        the environment less its padding; the robot's reach from the base's axis)."""
+        q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
+        out = np.empty((len(q), 2))
+        _clearances(q, self.model, out)
+        return out
 
 
 def _body_index(i: int):
@@ -266,106 +276,160 @@ def _vertical_cylinder_box(px, py, pz, r, hh, R, p, h):
 
 
 @nb.njit(cache=True)
+def _vertical_cylinder_box_overlap(px, py, pz, r, hh, R, p, h, s):
+    """Whether the vertical cylinder and the box turned about z, each shrunk by s on every side,
+    still overlap (then the two reach s or more into each other)."""
+    dx, dy, dz = px - p[0], py - p[1], pz - p[2]
+    lx = R[0, 0] * dx + R[1, 0] * dy
+    ly = R[0, 1] * dx + R[1, 1] * dy
+    ex = max(abs(lx) - (h[0] - s), 0.0)
+    ey = max(abs(ly) - (h[1] - s), 0.0)
+    return math.sqrt(ex * ex + ey * ey) < r - s and abs(dz) < h[2] + hh - 2 * s
+
+
+@nb.njit(cache=True)
 def _point_vertical_cylinder(px, py, pz, cx, cy, cz, r, hh):
     gr = max(math.sqrt((px - cx) ** 2 + (py - cy) ** 2) - r, 0.0)
     gz = max(abs(pz - cz) - hh, 0.0)
     return math.sqrt(gr * gr + gz * gz)
 
 
+def _sphere_starts(s_geom: np.ndarray, n_geom: int) -> np.ndarray:
+    """s0 (G + 1,): the spheres of geometry g are s0[g]:s0[g + 1] (they are appended in order)."""
+    return np.concatenate([[0], np.cumsum(np.bincount(s_geom, minlength=n_geom))]).astype(np.int64)
+
+
 @nb.njit(cache=True)
-def _certify(q, X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s_geom, s_c, s_rho, s_in,
-             e_R, e_p, e_h, e_zal, e_exact, pairs, pair_pad, out):
-    G, S, M, P = g_body.shape[0], s_geom.shape[0], e_p.shape[0], pairs.shape[0]
-    s0 = np.zeros(G + 1, np.int64)  # the spheres of geometry g are s0[g]:s0[g + 1] (appended in order)
-    for k in range(S):
-        s0[s_geom[k] + 1] += 1
+def _scratch(model):
+    """Work arrays of `_pose_robot` for one model: (geometry poses, their centres, sphere centres,
+    body poses, two 4x4 temporaries)."""
+    G, S = model[2].shape[0], model[10].shape[0]
+    return (np.empty((G, 4, 4)), np.empty((G, 3)), np.empty((S, 3)), np.empty((6, 4, 4)), np.empty((4, 4)),
+            np.empty((4, 4)))
+
+
+@nb.njit(cache=True)
+def _pose_robot(qn, model, scratch):
+    """Fills scratch with the robot's geometry poses (XG), their centres (gp) and the sphere
+    centres (sw) at the state qn (8,)."""
+    X_PF, axes, g_body, g_X, s_geom, s_c = model[0], model[1], model[2], model[3], model[10], model[11]
+    XG, gp, sw, T, tmp, rot = scratch
+    _body_poses_into(qn, X_PF, axes, T, tmp, rot)
+    for g in range(g_body.shape[0]):
+        _mul(T[g_body[g]], g_X[g], XG[g])
+        for i in range(3):
+            gp[g, i] = XG[g, i, 3]
+    for k in range(s_geom.shape[0]):
+        X = XG[s_geom[k]]
+        for i in range(3):
+            sw[k, i] = X[i, 0] * s_c[k, 0] + X[i, 1] * s_c[k, 1] + X[i, 2] * s_c[k, 2] + X[i, 3]
+
+
+@nb.njit(cache=True)
+def _classify_one(qn, model, scratch) -> int:
+    """FREE, COLLIDING or UNKNOWN for one state qn (8,) (see `FreeCertificate.classify`)."""
+    (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
+     e_exact, pairs, pair_pad) = model
+    G, M, P = g_body.shape[0], e_p.shape[0], pairs.shape[0]
+    _pose_robot(qn, model, scratch)
+    gp, sw = scratch[1], scratch[2]
+    # a ball inside a robot geometry reaches into an environment box (padding >= 0)
     for g in range(G):
-        s0[g + 1] += s0[g]
-    gp = np.empty((G, 3))
-    sw = np.empty((S, 3))
-    T = np.empty((6, 4, 4))
-    XG = np.empty((G, 4, 4))
-    tmp, rot = np.empty((4, 4)), np.empty((4, 4))
-    for n in range(q.shape[0]):
-        _body_poses_into(q[n], X_PF, axes, T, tmp, rot)
-        for g in range(G):
-            _mul(T[g_body[g]], g_X[g], XG[g])
-            for i in range(3):
-                gp[g, i] = XG[g, i, 3]
-        for k in range(S):
-            X = XG[s_geom[k]]
-            for i in range(3):
-                sw[k, i] = X[i, 0] * s_c[k, 0] + X[i, 1] * s_c[k, 1] + X[i, 2] * s_c[k, 2] + X[i, 3]
-        hit = False  # a ball inside a robot geometry reaches into an environment box (padding >= 0)
-        for g in range(G):
-            if hit:
-                break
-            if not g_pad[g] >= 0.0:
-                continue
-            for m in range(M):
-                if not e_exact[m] or _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) >= g_bound[g]:
-                    continue
-                for k in range(s0[g], s0[g + 1]):
-                    if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) < s_in[k] - EPS:
-                        hit = True
-                        break
-                if hit:
-                    break
-        if hit:
-            out[n] = COLLIDING
+        if not g_pad[g] >= 0.0:
             continue
-        ok = True
-        for g in range(G):
-            if not ok:
-                break
-            pad = g_pad[g]
-            if pad == -np.inf:
+        for m in range(M):
+            if not e_exact[m] or _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) >= g_bound[g]:
                 continue
-            for m in range(M):
-                d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m])
-                if d > g_bound[g] + pad + EPS:
-                    continue
-                if g_vert[g] and e_zal[m]:
-                    if _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
-                                              e_h[m]) <= pad + EPS:
-                        ok = False
-                        break
-                    continue
-                for k in range(s0[g], s0[g + 1]):
-                    if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) <= s_rho[k] + pad + EPS:
-                        ok = False
-                        break
-                if not ok:
-                    break
-        for j in range(P):
-            if not ok:
-                break
-            a, c = pairs[j, 0], pairs[j, 1]
-            pad = pair_pad[j]
-            dd = math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2 + (gp[a, 2] - gp[c, 2]) ** 2)
-            if dd > g_bound[a] + g_bound[c] + pad + EPS:
+            if g_vert[g] and e_zal[m] and _vertical_cylinder_box_overlap(
+                    gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m], e_h[m], EPS):
+                return COLLIDING
+            for k in range(s0[g], s0[g + 1]):
+                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) < s_in[k] - EPS:
+                    return COLLIDING
+    for g in range(G):
+        pad = g_pad[g]
+        if pad == -np.inf:
+            continue
+        for m in range(M):
+            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m])
+            if d > g_bound[g] + pad + EPS:
                 continue
-            if g_vert[a] and g_vert[c]:
-                gxy = max(math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2) - g_r[a] - g_r[c], 0.0)
-                gz = max(abs(gp[a, 2] - gp[c, 2]) - g_h[a] - g_h[c], 0.0)
-                if math.sqrt(gxy * gxy + gz * gz) <= pad + EPS:
-                    ok = False
+            if g_vert[g] and e_zal[m]:
+                if _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
+                                          e_h[m]) <= pad + EPS:
+                    return UNKNOWN
                 continue
-            if g_vert[c]:  # the vertical one as `a`
-                a, c = c, a
-            for k in range(s0[c], s0[c + 1]):
-                if g_vert[a]:
-                    if _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2], g_r[a],
-                                                g_h[a]) <= s_rho[k] + pad + EPS:
-                        ok = False
-                        break
-                    continue
-                for k2 in range(s0[a], s0[a + 1]):
-                    if math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
-                                                     + (sw[k, 2] - sw[k2, 2]) ** 2) <= s_rho[k] + s_rho[k2] + pad + EPS:
-                        ok = False
-                        break
-                if not ok:
-                    break
-        if ok:
-            out[n] = FREE
+            for k in range(s0[g], s0[g + 1]):
+                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) <= s_rho[k] + pad + EPS:
+                    return UNKNOWN
+    for j in range(P):
+        a, c = pairs[j, 0], pairs[j, 1]
+        pad = pair_pad[j]
+        dd = math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2 + (gp[a, 2] - gp[c, 2]) ** 2)
+        if dd > g_bound[a] + g_bound[c] + pad + EPS:
+            continue
+        if g_vert[a] and g_vert[c]:
+            gxy = max(math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2) - g_r[a] - g_r[c], 0.0)
+            gz = max(abs(gp[a, 2] - gp[c, 2]) - g_h[a] - g_h[c], 0.0)
+            if math.sqrt(gxy * gxy + gz * gz) <= pad + EPS:
+                return UNKNOWN
+            continue
+        if g_vert[c]:  # the vertical one as `a`
+            a, c = c, a
+        for k in range(s0[c], s0[c + 1]):
+            if g_vert[a]:
+                if _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2], g_r[a],
+                                            g_h[a]) <= s_rho[k] + pad + EPS:
+                    return UNKNOWN
+                continue
+            for k2 in range(s0[a], s0[a + 1]):
+                if math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
+                             + (sw[k, 2] - sw[k2, 2]) ** 2) <= s_rho[k] + s_rho[k2] + pad + EPS:
+                    return UNKNOWN
+    return FREE
+
+
+@nb.njit(cache=True)
+def _certify(q, model, out):
+    scratch = _scratch(model)
+    for n in range(q.shape[0]):
+        out[n] = _classify_one(q[n], model, scratch)
+
+
+@nb.njit(cache=True)
+def _clearance_one(qn, model, scratch):
+    """(d, R) at the state qn (8,): d a lower bound of the distance between the robot and every
+    environment geometry it is checked against, less that pair's padding (<= 0: no bound), and
+    R the largest horizontal distance of a point of the robot from the base's vertical axis.
+    A planar rigid motion of the whole robot by (dx, dy, dtheta) about that axis moves no point
+    more than hypot(dx, dy) + R |dtheta|, so any such motion smaller than d keeps it free of the
+    environment; the robot's self-distances do not change under it."""
+    (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
+     e_exact, pairs, pair_pad) = model
+    G, M = g_body.shape[0], e_p.shape[0]
+    _pose_robot(qn, model, scratch)
+    gp, sw = scratch[1], scratch[2]
+    d, R = np.inf, 0.0
+    for g in range(G):
+        if g_vert[g]:
+            R = max(R, math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_r[g])
+        for k in range(s0[g], s0[g + 1]):
+            R = max(R, math.hypot(sw[k, 0] - qn[0], sw[k, 1] - qn[1]) + s_rho[k])
+        pad = g_pad[g]
+        if pad == -np.inf:
+            continue
+        for m in range(M):
+            if g_vert[g] and e_zal[m]:
+                d = min(d, _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
+                                                  e_h[m]) - pad)
+                continue
+            for k in range(s0[g], s0[g + 1]):
+                d = min(d, _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) - s_rho[k] - pad)
+    return d - EPS, R
+
+
+@nb.njit(cache=True)
+def _clearances(q, model, out):
+    scratch = _scratch(model)
+    for n in range(q.shape[0]):
+        out[n, 0], out[n, 1] = _clearance_one(q[n], model, scratch)

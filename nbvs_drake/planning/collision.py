@@ -6,11 +6,14 @@ decides every other state, so the verdicts are Drake's."""
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..config import Scenario
 from ..robot import RobotKinematics, add_robot
 from ..scene import add_environment
+from . import bulk
 from .clearance import FREE, UNKNOWN, FreeCertificate, Unsupported
 
 
@@ -40,14 +43,54 @@ class CollisionModel:
         #: the free-space certificate (None: Drake checks every state; also when the world has
         #: geometry the certificate does not model)
         self.certificate = None
+        #: what the checks cost: states classified by the conservative model (certificate and
+        #: bulk kernels), states Drake was asked about, seconds spent (`check_stats`)
+        self.counter = np.zeros(1, np.int64)
+        self.drake_queries = 0
+        self.check_s = 0.0
         if certificate:
             try:
                 self.certificate = FreeCertificate(self.diagram, self.checker, kin)
             except Unsupported:
                 pass
 
+    def check_stats(self) -> dict:
+        return {"collision_checks": int(self.counter[0]) + self.drake_queries, "drake_queries": self.drake_queries,
+                "collision_check_s": self.check_s}
+
+    def bulk_classify(self, q: np.ndarray) -> np.ndarray:
+        """FREE / COLLIDING / UNKNOWN of states (N, 8) by the conservative model alone (needs
+        the certificate)."""
+        t = time.perf_counter()
+        out = bulk.classify(np.ascontiguousarray(np.atleast_2d(q), float), self.certificate.model, self.counter)
+        self.check_s += time.perf_counter() - t
+        return out
+
+    def bulk_path(self, states: np.ndarray, max_step: float = 0.02) -> int:
+        """FREE / COLLIDING / UNKNOWN of a path by the conservative model alone (bulk.path_verdict)."""
+        t = time.perf_counter()
+        out = bulk.path_verdict(np.ascontiguousarray(states, float), self.certificate.model, max_step, bulk.STRIDE,
+                                self.counter)
+        self.check_s += time.perf_counter() - t
+        return int(out)
+
+    def bulk_edges(self, A: np.ndarray, B: np.ndarray, rc: np.ndarray, max_step: float = 0.02) -> np.ndarray:
+        """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (bulk.edge_verdicts)."""
+        t = time.perf_counter()
+        out = bulk.edge_verdicts(np.ascontiguousarray(A, float), np.ascontiguousarray(B, float),
+                                 self.certificate.model, rc, max_step, bulk.STRIDE, self.counter)
+        self.check_s += time.perf_counter() - t
+        return out
+
     def free(self, q: np.ndarray, parallelize: bool = True) -> np.ndarray:
         """Boolean (N,) collision-free flags for states (N, 8)."""
+        t = time.perf_counter()
+        try:
+            return self._free(q, parallelize)
+        finally:
+            self.check_s += time.perf_counter() - t
+
+    def _free(self, q: np.ndarray, parallelize: bool) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, float))
         if len(q) == 0:
             return np.zeros(0, bool)
@@ -55,10 +98,12 @@ class CollisionModel:
             out, todo = np.zeros(len(q), bool), np.arange(len(q))
         else:
             verdict = self.certificate.classify(q)
+            self.counter[0] += len(q)
             out, todo = verdict == FREE, np.flatnonzero(verdict == UNKNOWN)
         if len(todo) == 0:
             return out
         pos = self.kin.to_positions(q[todo])
+        self.drake_queries += len(todo)
         if len(todo) == 1:
             out[todo[0]] = self.checker.CheckConfigCollisionFree(pos[0])
         else:  # thread dispatch costs more than it saves on small batches

@@ -15,9 +15,10 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import detour_waypoints, rollout, steer, steer_via
+from ..motion import detour_waypoints, path_length, rollout, steer, steer_via
 from ..robot import RobotKinematics
 from .candidates import StateSampler
+from .clearance import FREE, UNKNOWN
 from .collision import CollisionModel
 
 
@@ -69,10 +70,25 @@ class MotionPlanner:
     #: obstacle) may be left within this many control steps; the rest of the path is checked
     max_escape_steps: int = 15
 
-    def __init__(self, sc: Scenario, kin: RobotKinematics, sampler: StateSampler):
+    def __init__(self, sc: Scenario, kin: RobotKinematics, sampler: StateSampler, bulk_checks: bool = True):
         self.sc = sc
         self.kin = kin
         self.sampler = sampler
+        #: paths are first checked whole by the bulk kernels (planning/bulk.py) and go to the
+        #: certificate-then-Drake checks only when those cannot decide (False: as before them)
+        self.bulk_checks = bulk_checks
+        self._roadmap = None
+        #: what the last `connect_many` did (roadmap queries: rounds, edges checked, ...)
+        self.last_query: dict = {}
+        #: every goal `connect_many` was asked for and the eq. 8 length of its path (nan: not
+        #: reached), in order (benchmarks compare planners on the goals both reach)
+        self.path_log: list[tuple[np.ndarray, float]] = []
+
+    def _bulk(self, states: np.ndarray, obstacles: ObstacleModel, max_step: float) -> int:
+        """The bulk verdict of a path (FREE, COLLIDING or UNKNOWN: ask the certificate and Drake)."""
+        if not self.bulk_checks or obstacles.collision.certificate is None:
+            return UNKNOWN
+        return obstacles.collision.bulk_path(states, max_step)
 
     def escape_prefix(self, states: np.ndarray, obstacles: ObstacleModel) -> int | None:
         """0 when the path starts collision-free; else the index of its first free state if
@@ -88,7 +104,12 @@ class MotionPlanner:
         extensions), then the whole path at `max_step` resolution; a path that fails only
         because its start state is in collision is accepted when it leaves the collision
         within the escape prefix and is free from there on."""
-        if not np.all(self.kin.arm_within_limits(states)) or not obstacles.free(states[-1:])[0]:
+        if not np.all(self.kin.arm_within_limits(states)):
+            return False
+        v = self._bulk(states, obstacles, max_step)
+        if v != UNKNOWN:
+            return v == FREE
+        if not obstacles.free(states[-1:])[0]:
             return False
         if obstacles.collision.path_free(states, max_step=max_step):
             return True
@@ -101,10 +122,15 @@ class MotionPlanner:
         (`CollisionModel.paths_free`); a path that fails there and starts in collision gets
         the escape-prefix test of `path_free`."""
         ok = np.array([bool(np.all(self.kin.arm_within_limits(s))) for s in paths], bool)
-        idx = np.flatnonzero(ok)
+        undecided = ok.copy()
+        for i in np.flatnonzero(ok):
+            v = self._bulk(paths[i], obstacles, max_step)
+            if v != UNKNOWN:
+                ok[i], undecided[i] = v == FREE, False
+        idx = np.flatnonzero(undecided)
         if len(idx):
             ok[idx] = obstacles.free(np.stack([paths[i][-1] for i in idx]))
-        idx = np.flatnonzero(ok)
+        idx = idx[ok[idx]]
         if len(idx):
             ok[idx] = obstacles.collision.paths_free([paths[i] for i in idx], max_step=max_step)
         for i in idx[~ok[idx]]:
@@ -143,3 +169,58 @@ class MotionPlanner:
             if res.found:
                 return "rrt", res.controls, res.states
         return None
+
+    @property
+    def roadmap(self):
+        """The mission's roadmap (planning/roadmap.py), created on first use."""
+        if self._roadmap is None:
+            from .roadmap import Roadmap
+            self._roadmap = Roadmap(self.sc, self.kin, self.sampler)
+        return self._roadmap
+
+    def connect_many(self, q0: np.ndarray, goals: np.ndarray, obstacles: ObstacleModel,
+                     rng: np.random.Generator | None = None) -> list:
+        """Paths from q0 to each of goals (K, 8), as `connect`'s (kind, controls, states) or None.
+        planner.motion_planner "rrt_ext_ext": `connect` for one goal after the other (the
+        paper's way). "roadmap": the first free direct steering path of each goal (`steer`'s
+        order, shortest first); one search of the mission's roadmap for all the others at once
+        (`Roadmap.query`: kind "roadmap"); detours (planner.detour_steering) for those the
+        roadmap does not reach. Every path returned has passed `path_free` (Drake decides what
+        the conservative model cannot)."""
+        goals = np.asarray(goals, float).reshape(-1, 8)
+        out = self._connect_many(q0, goals, obstacles, rng)
+        w = self.sc.planner.weights
+        self.path_log += [(g, path_length(r[2], w) if r is not None else float("nan")) for g, r in zip(goals, out)]
+        return out
+
+    def _connect_many(self, q0, goals, obstacles, rng) -> list:
+        p, rc = self.sc.planner, self.sc.robot
+        if p.motion_planner != "roadmap" or obstacles.collision.certificate is None or rng is None:
+            return [self.connect(q0, g, obstacles, rng) for g in goals]
+        out: list = [None] * len(goals)
+        for i, g in enumerate(goals):
+            for kind, controls in steer(q0, g, rc):
+                states = rollout(q0, controls, rc.control_dt)
+                if self.path_free(states, obstacles):
+                    out[i] = (kind, controls, states)
+                    break
+        todo = [i for i in range(len(goals)) if out[i] is None]
+        self.last_query = {}
+        if todo:
+            paths, st = self.roadmap.query(q0, goals[todo], obstacles.collision,
+                                           lambda s: self.path_free(s, obstacles), rng)
+            self.last_query = st.to_json()
+            for i, r in zip(todo, paths):
+                if r is not None and self.path_free(r[1], obstacles):
+                    out[i] = ("roadmap", r[0], r[1])
+        for i in range(len(goals)):
+            if out[i] is None and p.detour_steering:
+                for w in detour_waypoints(q0, goals[i], rc.xy_bounds):
+                    for kind, controls in steer_via(q0, goals[i], w, rc):
+                        states = rollout(q0, controls, rc.control_dt)
+                        if self.path_free(states, obstacles):
+                            out[i] = (kind, controls, states)
+                            break
+                    if out[i] is not None:
+                        break
+        return out

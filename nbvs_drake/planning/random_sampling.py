@@ -68,10 +68,10 @@ class RandomSamplingPlanner:
             with the expected utility, none is feasible under noise), the next k of the
             ranking, until one qualifies or the ranking runs out."""
             for start in range(0, len(ranked), p.top_k):
-                reachable, tried = [], 0
-                for i in ranked[start:start + p.top_k]:
-                    tried += 1
-                    found = self.motion.connect(request.q_start, cand[i], obstacles, rng)
+                reachable = []
+                batch = ranked[start:start + p.top_k]
+                # one search for the whole batch (planner.motion_planner)
+                for i, found in zip(batch, self.motion.connect_many(request.q_start, cand[batch], obstacles, rng)):
                     if found is None:
                         continue
                     kind, controls, states = found
@@ -83,7 +83,7 @@ class RandomSamplingPlanner:
                         "rho": float(rho), "un_o": int(un[i]), "un_touched": int(un[i] + post[i]), "oc_o": int(oc[i]),
                         "overlap": float(overlap[i]),
                         "un_total": int(un_total), "du": float(du)}))
-                yield reachable, tried
+                yield reachable, len(batch)
 
         best = select_best(batches(), self.utility, request, obstacles, un_total, stages, times)
         stages["top_k"] = min(p.top_k, len(ranked))

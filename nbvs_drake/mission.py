@@ -163,7 +163,11 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
             "generate": stage_total("generate_s"),
             "position_filter": stage_total("position_s"),
             "visibility": stage_total("visibility_s"),
-            "motion_planning": stage_total("motion_s"),
+            # the path search and every collision check (the expected utility's rollouts' included)
+            "motion_planning": float(sum(r["plan"].get("times", {}).get(
+                "motion_planning_s", r["plan"].get("times", {}).get("motion_s", 0.0)) for r in records)),
+            # candidate views (and the expected utility's rollouts' final views) scored
+            "view_evaluation": stage_total("view_evaluation_s"),
             "map_update": float(sum(r["scan"].get("update_s", 0.0) for r in records)),
             "registration": float(sum(r["scan"].get("register_s", 0.0) for r in records)),
             "render": float(sum(r["scan"].get("render_s", 0.0) for r in records)),

@@ -86,7 +86,7 @@ def test_full_sizes_follow_the_papers():
     size = {n: len(expand(resolve(load_definition(n)))) for n in NAMES}
     assert size["motion_noise"] == 2 * 3 * 10  # Table 5: two objects here, three approaches, ten runs
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
-    assert size["clutter"] == 2 * 5  # Table 6: five repetitions
+    assert size["clutter"] == 2 * 2 * 5  # Table 6: five repetitions, with both motion planners
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["hrt"] % 4 == 0  # a = 0..3
 

@@ -89,6 +89,8 @@ def derived(run: dict) -> dict:
         "plan_s_per_iteration": times.get("plan", 0.0) / len(plans) if plans else None,
         "visibility_s_per_iteration": times.get("visibility", 0.0) / len(plans) if plans else None,
         "motion_planning_s_per_iteration": times.get("motion_planning", 0.0) / len(plans) if plans else None,
+        "view_evaluation_s_per_iteration": (times["view_evaluation"] / len(plans)
+                                            if plans and "view_evaluation" in times else None),
     }
 
 

@@ -102,6 +102,7 @@ class ORTPlanner:
                    for s in range(0, len(ranked), p.top_k))
         best = select_best(batches, self.utility, request, obstacles, un_total, stages, times)
         stages["top_k"] = min(p.top_k, len(ranked))
+        times["motion_planning_s"] += times["tree_s"]  # the tree's growth is its path search
         if best is None:
             return PlanResult("no_feasible", stages=stages, times=times)
         best.stages, best.times = stages, times

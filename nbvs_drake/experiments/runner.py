@@ -549,8 +549,8 @@ def _run_key(run: dict) -> dict:
 def _restore_records(batch: Batch, specs, records, folder: str) -> int:
     """Restores the recorded runs that batch's folder lacks, and sets batch.records: each
     run's own record (records/<folder>/<run>.json.gz), or else the record of the same run made
-    by another experiment (equal settings, `records.RecordIndex`), which is then also recorded
-    as this experiment's. A record of its own made with other settings than its spec is
+    by another experiment or under another run name (equal settings, `records.RecordIndex`),
+    which is then also recorded under this run's name. A record of its own made with other settings than its spec is
     refused, as a run folder is. Returns the number restored."""
     if records is None:
         return 0
@@ -564,7 +564,9 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
             continue
         shared = not src.is_file()
         if shared:
-            src = index.find(spec.resolve(), exclude=batch.records)
+            # another experiment's record, or this one's under an older run name (a factor
+            # added since renames the runs: the clutter runs before planner.motion_planner)
+            src = index.find(spec.resolve())
             if src is None:
                 continue
         rec = read_record(src)

@@ -26,7 +26,19 @@ import math
 import numba as nb
 import numpy as np
 
-from .clearance import COLLIDING, FREE, UNKNOWN, _classify_one, _scratch
+from .clearance import (
+    COLLIDING,
+    EPS,
+    FREE,
+    UNKNOWN,
+    _classify_one,
+    _point_box,
+    _pose_robot,
+    _scratch,
+    _vertical_cylinder_box,
+    _vertical_cylinder_box_overlap,
+    unpack,
+)
 
 #: states visited in the first, coarse pass over a path: every STRIDE-th (and the last)
 STRIDE = 8
@@ -73,9 +85,15 @@ def _verdict_of_states(allq, model, scratch, stride, counter):
     if _classify_one(allq[0], model, scratch) != FREE:
         return UNKNOWN
     unknown = False
+    if n > 1:  # the end state next: most blocked extensions end in an obstacle
+        counter[0] += 1
+        v = _classify_one(allq[n - 1], model, scratch)
+        if v == COLLIDING:
+            return COLLIDING
+        unknown = v == UNKNOWN
     for phase in range(2):
-        for i in range(1, n):
-            coarse = (i % stride == 0) or i == n - 1
+        for i in range(1, n - 1):
+            coarse = i % stride == 0
             if coarse != (phase == 0):
                 continue
             counter[0] += 1
@@ -88,8 +106,9 @@ def _verdict_of_states(allq, model, scratch, stride, counter):
 
 
 @nb.njit(cache=True)
-def path_verdict(states, model, max_step, stride, counter):
+def path_verdict(states, F, I, H, max_step, stride, counter):
     """FREE / COLLIDING / UNKNOWN of a path's states (m+1, 8), interpolated at max_step."""
+    model = unpack(F, I, H)
     return _verdict_of_states(interpolate(states, max_step), model, _scratch(model), stride, counter)
 
 
@@ -181,8 +200,9 @@ def edge_lengths(A, B, w, rc):
 
 
 @nb.njit(cache=True)
-def edge_verdicts(A, B, model, rc, max_step, stride, counter):
+def edge_verdicts(A, B, F, I, H, rc, max_step, stride, counter):
     """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (int8 (N,))."""
+    model = unpack(F, I, H)
     out = np.empty(A.shape[0], np.int8)
     scratch = _scratch(model)
     for i in range(A.shape[0]):
@@ -228,8 +248,9 @@ def knn(V, Q, w, k, skip_self):
 
 
 @nb.njit(cache=True)
-def classify(Q, model, counter):
+def classify(Q, F, I, H, counter):
     """FREE / COLLIDING / UNKNOWN of states (N, 8)."""
+    model = unpack(F, I, H)
     out = np.empty(Q.shape[0], np.int8)
     scratch = _scratch(model)
     for i in range(Q.shape[0]):
@@ -241,3 +262,91 @@ def classify(Q, model, counter):
 def robot_params(rc) -> np.ndarray:
     """The steering function's parameters of a RobotConfig as the kernels take them."""
     return np.array([rc.control_dt, rc.max_linear_velocity, rc.max_angular_velocity, rc.max_arm_velocity], float)
+
+
+@nb.njit(cache=True)
+def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
+    """FREE / COLLIDING / UNKNOWN (int8 (k, L)) of rollout states (k, L, 8) against the nominal
+    states of the same steps (L, 8) and their part clearances (c, r (L, parts):
+    `clearance._part_clearances`). A state whose arm equals the nominal's, at a step whose
+    nominal state is proved free, differs from it by a planar rigid motion of the whole robot:
+    its self-distances are the nominal's, and each part j of the robot with
+    hypot(dx, dy) + r_j |dtheta| < c_j stays clear of the environment; only the other parts are
+    tested (as `_classify_one` tests them: a ball inside them reaching into a box proves a
+    collision, a part beyond every box's padding is free). Other states get `_classify_one`."""
+    model = unpack(F, I, H)
+    (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
+     e_exact, pairs, pair_pad) = model
+    scratch = _scratch(model)
+    G, M = g_body.shape[0], e_p.shape[0]
+    P = c.shape[1]
+    part_g = np.empty(P, np.int64)
+    part_s = np.empty(P, np.int64)  # the sphere, or -1 for a vertical cylinder
+    j = 0
+    for g in range(G):
+        if g_vert[g]:
+            part_g[j], part_s[j] = g, -1
+            j += 1
+        else:
+            for k in range(s0[g], s0[g + 1]):
+                part_g[j], part_s[j] = g, k
+                j += 1
+    k_, L = states.shape[0], states.shape[1]
+    nom_free = np.empty(L, np.bool_)
+    for t in range(L):
+        nom_free[t] = _classify_one(nominal[t], model, scratch) == FREE
+    out = np.empty((k_, L), np.int8)
+    fail = np.empty(P, np.bool_)
+    for i in range(k_):
+        for t in range(L):
+            q = states[i, t]
+            counter[0] += 1
+            same = nom_free[t]
+            for a in range(3, 8):
+                if q[a] != nominal[t, a]:
+                    same = False
+                    break
+            if not same:
+                out[i, t] = _classify_one(q, model, scratch)
+                continue
+            dxy = math.hypot(q[0] - nominal[t, 0], q[1] - nominal[t, 1])
+            dth = abs(_wrap(q[2] - nominal[t, 2]))
+            n_fail = 0
+            for j in range(P):
+                fail[j] = dxy + r[t, j] * dth >= c[t, j]
+                n_fail += fail[j]
+            if n_fail == 0:
+                out[i, t] = FREE
+                continue
+            _pose_robot(q, model, scratch)
+            gp, sw = scratch[1], scratch[2]
+            v = FREE
+            for j in range(P):
+                if not fail[j]:
+                    continue
+                g, kk = part_g[j], part_s[j]
+                pad = g_pad[g]
+                for m in range(M):
+                    if kk < 0:  # a vertical cylinder
+                        if pad >= 0.0 and e_exact[m] and e_zal[m] and _vertical_cylinder_box_overlap(
+                                gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m], e_h[m], EPS):
+                            v = COLLIDING
+                            break
+                        if e_zal[m]:
+                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
+                                                       e_h[m])
+                        else:
+                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) - g_bound[g]
+                        if d <= pad + EPS:
+                            v = UNKNOWN
+                    else:
+                        d = _point_box(sw[kk, 0], sw[kk, 1], sw[kk, 2], e_R[m], e_p[m], e_h[m])
+                        if pad >= 0.0 and e_exact[m] and d < s_in[kk] - EPS:
+                            v = COLLIDING
+                            break
+                        if d <= s_rho[kk] + pad + EPS:
+                            v = UNKNOWN
+                if v == COLLIDING:
+                    break
+            out[i, t] = v
+    return out

@@ -158,10 +158,9 @@ class FreeCertificate:
                     pads.append(checker.GetPaddingBetween(ba, bc))
         self.pairs = np.array(pairs, np.int64).reshape(-1, 2)
         self.pair_pad = np.array(pads, float)
-        #: the arrays the numba kernels take, in their order (`_classify_one`)
-        self.model = (self.X_PF, self.axes, self.g_body, self.g_X, self.g_vert, self.g_r, self.g_h, self.g_bound,
-                      self.g_pad, _sphere_starts(self.s_geom, len(self.g_body)), self.s_geom, self.s_c, self.s_rho,
-                      self.s_in, self.e_R, self.e_p, self.e_h, self.e_zal, self.e_exact, self.pairs, self.pair_pad)
+        self.s0 = _sphere_starts(self.s_geom, len(self.g_body))
+        #: the arrays the numba kernels take, packed (`pack_model`; `unpack` in the kernels)
+        self.model = pack_model({name: getattr(self, name) for name in MODEL_ARRAYS})
 
     def geometry_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WG (G, 4, 4) of the robot's collision geometries at the state q (8,)."""
@@ -178,20 +177,24 @@ class FreeCertificate:
         than EPS) or UNKNOWN (ask Drake)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
         out = np.full(len(q), UNKNOWN, np.int8)
-        _certify(q, self.model, out)
+        _certify(q, *self.model, out)
         return out
 
     def free(self, q: np.ndarray) -> np.ndarray:
         """True for the states (N, 8) proved collision free."""
         return self.classify(q) == FREE
 
-    def clearance(self, q: np.ndarray) -> np.ndarray:
-        """(N, 2) for states (N, 8): [d, R] of `_clearance_one` (a lower bound of the distance to
-        the environment less its padding; the robot's reach from the base's axis)."""
+    def n_parts(self) -> int:
+        """The parts of `part_clearances`: the spheres of the non-vertical geometries and the
+        vertical cylinders."""
+        return int(np.sum(self.g_vert)) + int(np.sum(~self.g_vert[self.s_geom]))
+
+    def part_clearances(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(c, r), each (N, parts), of `_part_clearances` at states (N, 8)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
-        out = np.empty((len(q), 2))
-        _clearances(q, self.model, out)
-        return out
+        c, r = np.empty((len(q), self.n_parts())), np.empty((len(q), self.n_parts()))
+        _part_clearances(q, *self.model, c, r)
+        return c, r
 
 
 def _body_index(i: int):
@@ -299,6 +302,60 @@ def _sphere_starts(s_geom: np.ndarray, n_geom: int) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(np.bincount(s_geom, minlength=n_geom))]).astype(np.int64)
 
 
+#: the model's arrays in the order the kernels take them; those in MODEL_INTS are stored as int64
+MODEL_ARRAYS = ("X_PF", "axes", "g_body", "g_X", "g_vert", "g_r", "g_h", "g_bound", "g_pad", "s0", "s_geom", "s_c",
+                "s_rho", "s_in", "e_R", "e_p", "e_h", "e_zal", "e_exact", "pairs", "pair_pad")
+MODEL_INTS = frozenset(("g_body", "g_vert", "s0", "s_geom", "e_zal", "e_exact", "pairs"))
+
+
+def pack_model(arrays: dict) -> tuple:
+    """The model's arrays packed into (F float64, I int64, H int64 (21, 4): offset and shape of
+    each), passed to the kernels as three array arguments: numba types arrays fast and tuples
+    slowly (a call with the 21 arrays as a tuple cost ~12 us)."""
+    F, I, H = [], [], np.zeros((len(MODEL_ARRAYS), 4), np.int64)
+    nf = ni = 0
+    for k, name in enumerate(MODEL_ARRAYS):
+        a = np.asarray(arrays[name])
+        is_int = name in MODEL_INTS
+        flat = np.ascontiguousarray(a, np.int64 if is_int else np.float64).reshape(-1)
+        H[k, 0] = ni if is_int else nf
+        H[k, 1:1 + a.ndim] = a.shape
+        (I if is_int else F).append(flat)
+        if is_int:
+            ni += len(flat)
+        else:
+            nf += len(flat)
+    return (np.concatenate(F) if F else np.zeros(0), np.concatenate(I) if I else np.zeros(0, np.int64), H)
+
+
+@nb.njit(cache=True)
+def unpack(F, I, H):
+    """The 21 model arrays (views) of a packed model (`pack_model`)."""
+    X_PF = F[H[0, 0]:H[0, 0] + H[0, 1] * H[0, 2] * H[0, 3]].reshape((H[0, 1], H[0, 2], H[0, 3]))
+    axes = F[H[1, 0]:H[1, 0] + H[1, 1] * H[1, 2]].reshape((H[1, 1], H[1, 2]))
+    g_body = I[H[2, 0]:H[2, 0] + H[2, 1]]
+    g_X = F[H[3, 0]:H[3, 0] + H[3, 1] * H[3, 2] * H[3, 3]].reshape((H[3, 1], H[3, 2], H[3, 3]))
+    g_vert = I[H[4, 0]:H[4, 0] + H[4, 1]]
+    g_r = F[H[5, 0]:H[5, 0] + H[5, 1]]
+    g_h = F[H[6, 0]:H[6, 0] + H[6, 1]]
+    g_bound = F[H[7, 0]:H[7, 0] + H[7, 1]]
+    g_pad = F[H[8, 0]:H[8, 0] + H[8, 1]]
+    s0 = I[H[9, 0]:H[9, 0] + H[9, 1]]
+    s_geom = I[H[10, 0]:H[10, 0] + H[10, 1]]
+    s_c = F[H[11, 0]:H[11, 0] + H[11, 1] * H[11, 2]].reshape((H[11, 1], H[11, 2]))
+    s_rho = F[H[12, 0]:H[12, 0] + H[12, 1]]
+    s_in = F[H[13, 0]:H[13, 0] + H[13, 1]]
+    e_R = F[H[14, 0]:H[14, 0] + H[14, 1] * H[14, 2] * H[14, 3]].reshape((H[14, 1], H[14, 2], H[14, 3]))
+    e_p = F[H[15, 0]:H[15, 0] + H[15, 1] * H[15, 2]].reshape((H[15, 1], H[15, 2]))
+    e_h = F[H[16, 0]:H[16, 0] + H[16, 1] * H[16, 2]].reshape((H[16, 1], H[16, 2]))
+    e_zal = I[H[17, 0]:H[17, 0] + H[17, 1]]
+    e_exact = I[H[18, 0]:H[18, 0] + H[18, 1]]
+    pairs = I[H[19, 0]:H[19, 0] + H[19, 1] * H[19, 2]].reshape((H[19, 1], H[19, 2]))
+    pair_pad = F[H[20, 0]:H[20, 0] + H[20, 1]]
+    return (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h,
+            e_zal, e_exact, pairs, pair_pad)
+
+
 @nb.njit(cache=True)
 def _scratch(model):
     """Work arrays of `_pose_robot` for one model: (geometry poses, their centres, sphere centres,
@@ -390,46 +447,52 @@ def _classify_one(qn, model, scratch) -> int:
 
 
 @nb.njit(cache=True)
-def _certify(q, model, out):
+def _certify(q, F, I, H, out):
+    model = unpack(F, I, H)
     scratch = _scratch(model)
     for n in range(q.shape[0]):
         out[n] = _classify_one(q[n], model, scratch)
 
 
 @nb.njit(cache=True)
-def _clearance_one(qn, model, scratch):
-    """(d, R) at the state qn (8,): d a lower bound of the distance between the robot and every
-    environment geometry it is checked against, less that pair's padding (<= 0: no bound), and
-    R the largest horizontal distance of a point of the robot from the base's vertical axis.
-    A planar rigid motion of the whole robot by (dx, dy, dtheta) about that axis moves no point
-    more than hypot(dx, dy) + R |dtheta|, so any such motion smaller than d keeps it free of the
-    environment; the robot's self-distances do not change under it."""
+def _part_clearances(q, F, I, H, c, r):
+    """Per part of the robot (each sphere of a geometry that is not a vertical cylinder, then
+    each vertical cylinder), at each state q[n]: c[n, j] a lower bound of the part's distance to
+    the environment less the padding (inf: filtered against it) and r[n, j] the largest
+    horizontal distance of a point of the part from the base's vertical axis. A planar rigid
+    motion of the whole robot by (dx, dy, dtheta) about that axis moves no point of part j more
+    than hypot(dx, dy) + r_j |dtheta|, so the part stays clear of the environment while that is
+    below c_j; the robot's self-distances do not change under such a motion."""
+    model = unpack(F, I, H)
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
+    scratch = _scratch(model)
     G, M = g_body.shape[0], e_p.shape[0]
-    _pose_robot(qn, model, scratch)
-    gp, sw = scratch[1], scratch[2]
-    d, R = np.inf, 0.0
-    for g in range(G):
-        if g_vert[g]:
-            R = max(R, math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_r[g])
-        for k in range(s0[g], s0[g + 1]):
-            R = max(R, math.hypot(sw[k, 0] - qn[0], sw[k, 1] - qn[1]) + s_rho[k])
-        pad = g_pad[g]
-        if pad == -np.inf:
-            continue
-        for m in range(M):
-            if g_vert[g] and e_zal[m]:
-                d = min(d, _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
-                                                  e_h[m]) - pad)
+    for n in range(q.shape[0]):
+        qn = q[n]
+        _pose_robot(qn, model, scratch)
+        gp, sw = scratch[1], scratch[2]
+        j = 0
+        for g in range(G):
+            pad = g_pad[g]
+            if g_vert[g]:
+                c[n, j] = np.inf
+                r[n, j] = math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_r[g]
+                if pad != -np.inf:
+                    for m in range(M):
+                        if e_zal[m]:
+                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
+                                                       e_h[m])
+                        else:
+                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) - g_bound[g]
+                        c[n, j] = min(c[n, j], d - pad - EPS)
+                j += 1
                 continue
             for k in range(s0[g], s0[g + 1]):
-                d = min(d, _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) - s_rho[k] - pad)
-    return d - EPS, R
-
-
-@nb.njit(cache=True)
-def _clearances(q, model, out):
-    scratch = _scratch(model)
-    for n in range(q.shape[0]):
-        out[n, 0], out[n, 1] = _clearance_one(q[n], model, scratch)
+                c[n, j] = np.inf
+                r[n, j] = math.hypot(sw[k, 0] - qn[0], sw[k, 1] - qn[1]) + s_rho[k]
+                if pad != -np.inf:
+                    for m in range(M):
+                        c[n, j] = min(c[n, j], _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m])
+                                      - s_rho[k] - pad - EPS)
+                j += 1

@@ -62,14 +62,14 @@ class CollisionModel:
         """FREE / COLLIDING / UNKNOWN of states (N, 8) by the conservative model alone (needs
         the certificate)."""
         t = time.perf_counter()
-        out = bulk.classify(np.ascontiguousarray(np.atleast_2d(q), float), self.certificate.model, self.counter)
+        out = bulk.classify(np.ascontiguousarray(np.atleast_2d(q), float), *self.certificate.model, self.counter)
         self.check_s += time.perf_counter() - t
         return out
 
     def bulk_path(self, states: np.ndarray, max_step: float = 0.02) -> int:
         """FREE / COLLIDING / UNKNOWN of a path by the conservative model alone (bulk.path_verdict)."""
         t = time.perf_counter()
-        out = bulk.path_verdict(np.ascontiguousarray(states, float), self.certificate.model, max_step, bulk.STRIDE,
+        out = bulk.path_verdict(np.ascontiguousarray(states, float), *self.certificate.model, max_step, bulk.STRIDE,
                                 self.counter)
         self.check_s += time.perf_counter() - t
         return int(out)
@@ -78,7 +78,7 @@ class CollisionModel:
         """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (bulk.edge_verdicts)."""
         t = time.perf_counter()
         out = bulk.edge_verdicts(np.ascontiguousarray(A, float), np.ascontiguousarray(B, float),
-                                 self.certificate.model, rc, max_step, bulk.STRIDE, self.counter)
+                                 *self.certificate.model, rc, max_step, bulk.STRIDE, self.counter)
         self.check_s += time.perf_counter() - t
         return out
 

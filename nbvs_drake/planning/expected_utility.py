@@ -30,6 +30,20 @@ from ..config import NoiseConfig
 from ..motion import control_sigmas, rollout, sample_control_noise, sample_truncated_normal, truncated_normal_logpdf
 from ..pose import EXACT_POSE_VAR, apply_corrections
 
+#: the coarse pass over a chunk of rollouts checks every COARSE_STEP-th step (and the last)
+COARSE_STEP = 8
+
+
+def coarse_to_fine(m: int) -> list[np.ndarray]:
+    """The column indices 0..m-1 of m steps in the order the rollouts are checked: the last
+    (the view state, near the object), every COARSE_STEP-th, then the rest."""
+    if m == 0:
+        return []
+    coarse = np.zeros(m, bool)
+    coarse[COARSE_STEP - 1::COARSE_STEP] = True
+    coarse[m - 1] = False
+    return [np.array([m - 1]), np.flatnonzero(coarse), np.flatnonzero(~coarse)[:-1]]
+
 
 def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> int:
     """Smallest k with (1 - eta gamma)^k <= alpha (eq. 18): with k rollouts, a trajectory whose
@@ -63,7 +77,7 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
                      rng: np.random.Generator, state_free: Callable[[np.ndarray], np.ndarray],
                      utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100,
                      weighting: str = "probability", max_collision_rate: float = 0.0,
-                     start_cov: np.ndarray | None = None) -> ExpectedUtility:
+                     start_cov: np.ndarray | None = None, block_free=None) -> ExpectedUtility:
     """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,);
     weighting "mean" or "probability" (see the module docstring); max_collision_rate: the
     share of colliding rollouts a feasible candidate may have (0: none, Algorithm 1);
@@ -71,7 +85,12 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     `registration.motion_prior` gives it: each rollout then starts from the belief moved by a
     draw of that error (truncated at beta sigma like the control noise), so a belief that no
     scan has corrected since the last plan spreads the rollouts' final states accordingly.
-    None or zero: Algorithm 1's exactly known start x_c."""
+    None or zero: Algorithm 1's exactly known start x_c.
+    block_free(states (c, L, 8), steps (L,)) -> bool (c, L), optional: the same check given the
+    states of c rollouts at the steps `steps` (1..m) of the plan; with it and no collision
+    allowed, each chunk of rollouts is checked coarse to fine (their final states, every
+    COARSE_STEP-th step, the rest) and stops at the first colliding rollout: the verdict is the
+    same, `collided_rollouts` then counts the colliding rollouts found before it stopped."""
     if weighting not in ("mean", "probability"):
         raise ValueError(f"weighting must be 'mean' or 'probability', got {weighting!r}")
     if not 0.0 <= max_collision_rate < 1.0:
@@ -90,9 +109,17 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     checked = collided = 0
     for start in range(0, k, chunk):
         block = states[start:start + chunk, 1:]  # intermediate and final states
-        free = state_free(block.reshape(-1, 8)).reshape(block.shape[:2])
         checked += len(block)
-        ok[start:start + len(block)] = free.all(axis=1)
+        if block_free is not None and allowed == 0:
+            bad = np.zeros(len(block), bool)
+            for cols in coarse_to_fine(block.shape[1]):
+                bad |= ~block_free(block[:, cols], cols + 1).all(axis=1)
+                if bad.any():
+                    break
+            ok[start:start + len(block)] = ~bad
+        else:
+            free = state_free(block.reshape(-1, 8)).reshape(block.shape[:2])
+            ok[start:start + len(block)] = free.all(axis=1)
         collided = int(np.count_nonzero(~ok[:start + len(block)]))
         if collided > allowed:
             return ExpectedUtility(False, 0.0, k, checked, collided)

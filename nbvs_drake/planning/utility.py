@@ -20,7 +20,8 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import wrap_angle
+from . import bulk
+from .clearance import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel
@@ -51,7 +52,7 @@ class ExpectedUtilityScore:
         self.overlap_h = overlap_h
         #: seconds spent checking rollouts for collision (reset by `select_best` per plan)
         self.checks_s = 0.0
-        self.stats = {"rollout_states": 0, "rollout_states_bounded": 0}
+        self.stats = {"rollout_states": 0, "rollout_states_drake": 0}
         p = sc.planner
         need = sample_count_bound(p.eu_alpha, p.eu_gamma)
         if p.eu_samples < need:
@@ -69,53 +70,55 @@ class ExpectedUtilityScore:
             g = g * (registration_overlap(met) > self.overlap_h)
         return g * dist
 
-    def _clearance_test(self, nominal: np.ndarray, obstacles: ObstacleModel):
-        """within(states (k, m, 8)) -> bool (k, m): the rollout states proved free because they
-        stay within the clearance of the nominal state of the same step (clearance.py,
-        `_clearance_one`: the robot moved rigidly in the plane by (dx, dy, dtheta) moves no
-        point more than hypot(dx, dy) + R |dtheta|, less than the nominal state's distance to
-        every obstacle). Only states whose arm equals the nominal's qualify (the Table 4 noise
-        leaves the arm exact); the others, and every state without a certificate, are checked."""
+    def _rollout_verdicts(self, nominal: np.ndarray, obstacles: ObstacleModel):
+        """verdicts(states (k, L, 8), steps (L,)) -> int8 (k, L): FREE, COLLIDING or UNKNOWN
+        (Drake decides) of the rollout states at those steps of the plan (1..m), by
+        `bulk.rollout_verdicts`: a state that differs from the nominal state of its step by a
+        planar rigid motion (the Table 4 noise leaves the arm exact) has the nominal's
+        self-distances, and only the parts of the robot that the motion may bring within their
+        clearance (clearance.py, `_part_clearances`) are tested against the environment. Without
+        a certificate (or bulk checks) every state is UNKNOWN."""
         cert = obstacles.collision.certificate
         if cert is None or not self.motion.bulk_checks:
-            return lambda s: np.zeros(s.shape[:2], bool)
+            return lambda s, steps: np.full(s.shape[:2], UNKNOWN, np.int8)
         t = time.perf_counter()
-        cl = cert.clearance(nominal)
+        nominal = np.ascontiguousarray(nominal, float)
+        c, r = cert.part_clearances(nominal)
         self.checks_s += time.perf_counter() - t
-        d, R = cl[:, 0], cl[:, 1]
-
-        def within(s):
-            dxy = np.hypot(s[..., 0] - nominal[:, 0], s[..., 1] - nominal[:, 1])
-            dth = np.abs(wrap_angle(s[..., 2] - nominal[:, 2]))
-            return (dxy + R * dth < d) & np.all(s[..., 3:] == nominal[:, 3:], axis=-1)
-        return within
+        col = obstacles.collision
+        return lambda s, steps: bulk.rollout_verdicts(np.ascontiguousarray(s, float), nominal[steps - 1],
+                                                      c[steps - 1], r[steps - 1], *cert.model, col.counter)
 
     def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
         """Algorithm 1 for one candidate."""
         p = self.sc.planner
         # the nominal path's escape from a colliding start
         skip = self.motion.escape_prefix(cand.states, obstacles) or 0
-        within = self._clearance_test(cand.states[1:], obstacles)
+        verdicts = self._rollout_verdicts(cand.states[1:], obstacles)
         m = len(cand.controls)
 
-        def free(s):  # rows: rollouts x states 1..m
+        def block_free(s, steps):  # s: rollouts x steps (1..m) of the plan
             t = time.perf_counter()
-            s = np.asarray(s, float).reshape(-1, m, 8)
-            ok = within(s)
-            todo = ~ok
-            if skip:
-                todo[:, :skip - 1] = False  # states 1..skip-1 of each rollout
-                ok[:, :skip - 1] = True
+            v = verdicts(s, steps)
+            ok = v == FREE
+            todo = v == UNKNOWN  # Drake decides (through the certificate)
+            if skip:  # states 1..skip-1 of each rollout: the nominal path's escape
+                todo[:, steps < skip] = False
+                ok[:, steps < skip] = True
             ok[todo] = obstacles.free(s[todo])
             self.stats["rollout_states"] += ok.size
-            self.stats["rollout_states_bounded"] += ok.size - int(todo.sum())
+            self.stats["rollout_states_drake"] += int(todo.sum())
             self.checks_s += time.perf_counter() - t
-            return ok.reshape(-1)
+            return ok
+
+        def free(s):  # rows: rollouts x states 1..m
+            return block_free(np.asarray(s, float).reshape(-1, m, 8), np.arange(1, m + 1)).reshape(-1)
         omap = request.omap
         return expected_utility(
             request.q_start, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, request.rng,
             free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration),
-            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=request.start_cov)
+            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=request.start_cov,
+            block_free=block_free)
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
               un_total: int) -> tuple[list[PlanResult], int]:

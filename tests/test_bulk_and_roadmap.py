@@ -1,0 +1,219 @@
+"""Collision checks in bulk (planning/bulk.py) and the mission roadmap (planning/roadmap.py):
+the bulk verdicts never call free what Drake finds in collision (random and near-contact
+states, edges and noisy rollouts, in the cluttered room and with voxel obstacles); every path
+the roadmap gives is free by Drake's own check and reaches its goal; a goal that cannot be
+reached costs a bounded share of the search; an edge through space found occupied since is not
+used."""
+
+import copy
+
+import numpy as np
+import pytest
+from conftest import random_states
+
+from nbvs_drake.config import load_scenario
+from nbvs_drake.errors import ScenarioError
+from nbvs_drake.motion import rollout, sample_control_noise, steer_together, wrap_angle
+from nbvs_drake.planning import bulk
+from nbvs_drake.planning.candidates import StateSampler
+from nbvs_drake.planning.clearance import COLLIDING, FREE, UNKNOWN
+from nbvs_drake.planning.collision import CollisionModel
+from nbvs_drake.planning.motion_planner import MotionPlanner, ObstacleModel
+from nbvs_drake.planning.roadmap import GROWTH_SAMPLES
+
+
+def _drake(model, q):
+    q = np.atleast_2d(q)
+    return np.asarray(model.checker.CheckConfigsCollisionFree(list(model.kin.to_positions(q)), parallelize=False),
+                      bool)
+
+
+def _near_contacts(model, q, free, n_pairs=200, steps=22):
+    a, b = q[free][:n_pairs], q[~free][:n_pairs]
+    m = min(len(a), len(b))
+    a, b = a[:m].copy(), b[:m].copy()
+    for _ in range(steps):
+        mid = 0.5 * (a + b)
+        ok = _drake(model, mid)
+        a[ok], b[~ok] = mid[ok], mid[~ok]
+    return np.concatenate([a, b])
+
+
+@pytest.fixture(scope="module")
+def clutter(kin):
+    sc = load_scenario("cluttered_room")
+    return sc, CollisionModel(sc, kin)
+
+
+@pytest.fixture(scope="module")
+def voxels(kin, first_scan_map):
+    sc, omap = first_scan_map
+    return sc, CollisionModel(sc, kin, obstacle_boxes=omap.obstacle_boxes(300)[0])
+
+
+@pytest.mark.parametrize("world", ["clutter", "voxels"])
+def test_bulk_states_and_edges_agree_with_drake(kin, world, request):
+    sc, model = request.getfixturevalue(world)
+    q = random_states(kin, 2000, seed=21)
+    free = _drake(model, q)
+    q = np.concatenate([q, _near_contacts(model, q, free)])
+    drake = _drake(model, q)
+    v = model.bulk_classify(q)
+    assert not np.any((v == FREE) & ~drake) and not np.any((v == COLLIDING) & drake)
+    assert np.mean(v[: 2000] != UNKNOWN) > 0.9  # it decides most states itself
+    # edges of the steering function from free states: FREE only when Drake finds every
+    # interpolated state free, COLLIDING only when it finds one in collision
+    rng = np.random.default_rng(3)
+    a = q[: 2000][free][:300]
+    b = kin.clip_arm(a + rng.normal(0, 0.4, a.shape))
+    verdict = model.bulk_edges(a, b, bulk.robot_params(sc.robot))
+    for x, y, ve in zip(a, b, verdict):
+        states = CollisionModel.interpolate(rollout(x, steer_together(x, y, sc.robot), sc.robot.control_dt))
+        ok = bool(np.all(_drake(model, states)))
+        assert ve != FREE or ok
+        assert ve != COLLIDING or not ok
+    assert {FREE, COLLIDING} <= set(verdict.tolist())
+
+
+def test_numba_steering_is_the_motion_models(kin, clutter):
+    sc, _ = clutter
+    rc, params = sc.robot, bulk.robot_params(sc.robot)
+    q = random_states(kin, 60, seed=4)
+    for a, b in zip(q[:30], q[30:]):
+        c = steer_together(a, b, rc)
+        np.testing.assert_array_equal(bulk.steer_together(a, b, *params), c)
+        s = rollout(a, c, rc.control_dt)
+        np.testing.assert_array_equal(bulk.rollout(a, c, rc.control_dt), s)
+        np.testing.assert_array_equal(bulk.interpolate(s, 0.02), CollisionModel.interpolate(s))
+
+
+def test_rollout_verdicts_agree_with_drake(kin, clutter):
+    """Noisy rollouts (Table 4) of paths that pass close to the chairs and the table: the
+    clearance-bounded verdicts are Drake's wherever they decide."""
+    sc, model = clutter
+    sampler = StateSampler(sc, kin)
+    rng = np.random.default_rng(5)
+    goals = sampler.sample_states(rng, 400)
+    goals = goals[_drake(model, goals)]
+    start = np.array(sc.robot.start)
+    n_checked = n_decided = 0
+    cert = model.certificate
+    for g in goals[:40]:
+        controls = steer_together(start, g, sc.robot)
+        nominal = rollout(start, controls, sc.robot.control_dt)
+        if not all(_drake(model, CollisionModel.interpolate(nominal))):
+            continue
+        eps = sample_control_noise(rng, sc.noise, controls, 40)
+        states = rollout(start, controls[None] + eps, sc.robot.control_dt)[:, 1:]
+        c, r = cert.part_clearances(nominal[1:])
+        v = bulk.rollout_verdicts(np.ascontiguousarray(states), nominal[1:], c, r, *cert.model, model.counter)
+        drake = _drake(model, states.reshape(-1, 8)).reshape(v.shape)
+        assert not np.any((v == FREE) & ~drake) and not np.any((v == COLLIDING) & drake)
+        n_checked += v.size
+        n_decided += int(np.sum(v != UNKNOWN))
+    assert n_checked > 10_000 and n_decided > 0.95 * n_checked
+
+
+@pytest.fixture(scope="module")
+def roadmap_plan(kin, clutter):
+    sc, model = clutter
+    sc = copy.deepcopy(sc)
+    sc.scene.object.kind, sc.scene.object.size = "bunny", -1
+    sc.planner.motion_planner = "roadmap"
+    sampler = StateSampler(sc, kin)
+    motion = MotionPlanner(sc, kin, sampler)
+    rng = np.random.default_rng(1)
+    cand, _ = sampler.generate(rng)
+    goals = cand[model.free(cand)][:25]
+    q0 = np.array(sc.robot.start)
+    paths = motion.connect_many(q0, goals, ObstacleModel(model), rng)
+    return sc, model, motion, q0, goals, paths
+
+
+def test_roadmap_paths_are_free_by_drake_and_reach_their_goals(roadmap_plan):
+    sc, model, motion, q0, goals, paths = roadmap_plan
+    kinds = [p[0] for p in paths if p is not None]
+    assert len(kinds) >= 20 and "roadmap" in kinds  # the corridor goals need the roadmap
+    for g, p in zip(goals, paths):
+        if p is None:
+            continue
+        kind, controls, states = p
+        np.testing.assert_allclose(rollout(q0, controls, sc.robot.control_dt), states, atol=1e-12)
+        d = states[-1] - g
+        d[2] = wrap_angle(d[2])  # the heading may end a full turn away
+        np.testing.assert_allclose(d, 0.0, atol=1e-9)
+        assert np.all(_drake(model, CollisionModel.interpolate(states))), kind
+
+
+def test_roadmap_is_kept_and_shortens_the_rrts_paths(roadmap_plan, kin):
+    """The second plan reuses the roadmap (nothing built); the roadmap's paths are no longer
+    (eq. 8) than RRT Ext-Ext's to the same goals (here: a few RRT searches, 2,000 vertices)."""
+    sc, model, motion, q0, goals, paths = roadmap_plan
+    n = len(motion.roadmap.V)
+    motion.connect_many(q0, goals[:5], ObstacleModel(model), np.random.default_rng(2))
+    assert motion.last_query.get("built", 0) == 0 and len(motion.roadmap.V) >= n
+    rrt_sc = copy.deepcopy(sc)
+    rrt_sc.planner.motion_planner, rrt_sc.planner.rrt_max_nodes = "rrt_ext_ext", 2000
+    rrt = MotionPlanner(rrt_sc, kin, motion.sampler)
+    via = [i for i, p in enumerate(paths) if p is not None and p[0] == "roadmap"][:3]
+    got = rrt.connect_many(q0, goals[via], ObstacleModel(model), np.random.default_rng(3))
+    both = [(motion.path_log[i][1], rrt.path_log[j][1]) for j, i in enumerate(via) if got[j] is not None]
+    assert both and np.mean([a for a, _ in both]) <= np.mean([b for _, b in both])
+
+
+def test_an_unreachable_goal_costs_a_bounded_share(kin, clutter):
+    """A free goal inside a closed cage of obstacle boxes: the query gives up on it after its
+    connection edges and one growth round around it, not a full search."""
+    sc, _ = clutter
+    sc = copy.deepcopy(sc)
+    sc.planner.motion_planner = "roadmap"
+    c, h, t, a = np.array([-1.3, 1.3]), 2.2, 0.05, 0.45  # cage centre, wall height, thickness, half width
+    walls = [((c[0] + dx * a, c[1] + dy * a, h / 2), (t + 2 * a * abs(dy), t + 2 * a * abs(dx), h))
+             for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+    walls.append(((c[0], c[1], h + t / 2), (2 * a + t, 2 * a + t, t)))
+    lo, hi = np.array(sc.scene.bbox_min), np.array(sc.scene.bbox_max)
+    walls.append((tuple((lo + hi) / 2), tuple(hi - lo)))  # W_box, as the plans have it
+    model = CollisionModel(sc, kin, obstacle_boxes=walls)
+    goal = np.array([c[0], c[1], 0.0, 0.0, np.pi / 2, 0.0, 0.0, 0.0])  # the arm tucked up
+    assert model.free(goal[None])[0]
+    sampler = StateSampler(sc, kin)
+    motion = MotionPlanner(sc, kin, sampler)
+    rng = np.random.default_rng(0)
+    cand, _ = sampler.generate(rng)
+    goals = np.concatenate([cand[model.free(cand)][:6], goal[None]])
+    paths = motion.connect_many(np.array(sc.robot.start), goals, ObstacleModel(model), rng)
+    assert paths[-1] is None and sum(p is not None for p in paths[:-1]) >= 5
+    st = motion.last_query
+    k = sc.planner.roadmap_neighbors
+    assert st["grown"] <= GROWTH_SAMPLES * 2  # one growth round, for at most the goals not reached
+    # its share: its own connection edges (2k in, and its tucked twin's) and the growth round's
+    assert st["edges_checked"] <= 400 + (2 * k + 2 * k) * 2 + GROWTH_SAMPLES * 2 * 2 * k
+
+
+def test_an_edge_through_space_found_occupied_is_not_used(kin, clutter):
+    sc, _ = clutter
+    sc = copy.deepcopy(sc)
+    sc.scene.clutter = "none"
+    sc.planner.motion_planner = "roadmap"
+    sampler = StateSampler(sc, kin)
+    motion = MotionPlanner(sc, kin, sampler)
+    tuck = [0.0, np.pi / 2, 0.0, 0.0, 0.0]
+    q0 = np.array([-1.5, 0.0, 0.0] + tuck)
+    goal = np.array([1.5, 0.0, 0.0] + tuck)  # across the table: no direct path
+    open_world = CollisionModel(sc, kin)
+    p1 = motion.connect_many(q0, goal[None], ObstacleModel(open_world), np.random.default_rng(0))[0]
+    assert p1 is not None and p1[0] == "roadmap"
+    # the map now finds a box where the first path passed, halfway
+    mid = p1[2][len(p1[2]) // 2]
+    box = [((mid[0], mid[1], 0.6), (0.5, 0.5, 1.2))]
+    blocked = CollisionModel(sc, kin, obstacle_boxes=box)
+    assert not np.all(blocked.free(CollisionModel.interpolate(p1[2])))
+    p2 = motion.connect_many(q0, goal[None], ObstacleModel(blocked), np.random.default_rng(0))[0]
+    assert p2 is not None
+    assert np.all(_drake(blocked, CollisionModel.interpolate(p2[2])))
+
+
+def test_motion_planner_setting_is_checked():
+    with pytest.raises(ScenarioError, match="planner.motion_planner"):
+        load_scenario(settings=["planner.motion_planner=prm"])
+    assert load_scenario("cluttered_room").planner.motion_planner == "roadmap"

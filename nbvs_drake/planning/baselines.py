@@ -223,7 +223,7 @@ class ViewCirclePlanner:
                     skip(i, "collision")
                     continue
                 n_free[0] += 1
-                found = self.motion.connect(request.q_start, free[0], obstacles, rng)
+                found = self.motion.connect_many(request.q_start, free[0][None], obstacles, rng)[0]
                 res = None if found is None else view_result(self.sc, self.evaluator, omap, free[0], found,
                                                                un_total, self.overlap_h)
                 if res is not None:
@@ -269,7 +269,7 @@ class RandomViewsPlanner:
 
         def candidates():
             for q in cand:
-                found = self.motion.connect(request.q_start, q, obstacles, rng)
+                found = self.motion.connect_many(request.q_start, q[None], obstacles, rng)[0]
                 yield None, q, (None if found is None else
                                 view_result(self.sc, self.evaluator, omap, q, found, un_total, self.overlap_h))
 

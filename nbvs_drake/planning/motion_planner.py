@@ -182,11 +182,12 @@ class MotionPlanner:
                      rng: np.random.Generator | None = None) -> list:
         """Paths from q0 to each of goals (K, 8), as `connect`'s (kind, controls, states) or None.
         planner.motion_planner "rrt_ext_ext": `connect` for one goal after the other (the
-        paper's way). "roadmap": the first free direct steering path of each goal (`steer`'s
-        order, shortest first); one search of the mission's roadmap for all the others at once
-        (`Roadmap.query`: kind "roadmap"); detours (planner.detour_steering) for those the
-        roadmap does not reach. Every path returned has passed `path_free` (Drake decides what
-        the conservative model cannot)."""
+        paper's way). "roadmap": the shortest free direct steering path of each goal (`steer`);
+        one search of the mission's roadmap for all goals whose shortest steering path
+        ('together') is blocked (`Roadmap.query`), its path taken where it is shorter (kind
+        "roadmap"); detours (planner.detour_steering) for the goals still without a path. Every
+        path returned has passed `path_free` (Drake decides what the conservative model
+        cannot)."""
         goals = np.asarray(goals, float).reshape(-1, 8)
         out = self._connect_many(q0, goals, obstacles, rng)
         w = self.sc.planner.weights
@@ -198,20 +199,25 @@ class MotionPlanner:
         if p.motion_planner != "roadmap" or obstacles.collision.certificate is None or rng is None:
             return [self.connect(q0, g, obstacles, rng) for g in goals]
         out: list = [None] * len(goals)
-        for i, g in enumerate(goals):
-            for kind, controls in steer(q0, g, rc):
-                states = rollout(q0, controls, rc.control_dt)
-                if self.path_free(states, obstacles):
-                    out[i] = (kind, controls, states)
+        length = np.full(len(goals), np.inf)
+        for i, g in enumerate(goals):  # the shortest free direct steering path
+            options = [(kind, c, rollout(q0, c, rc.control_dt)) for kind, c in steer(q0, g, rc)]
+            for o in sorted(options, key=lambda o: path_length(o[2], p.weights)):
+                if self.path_free(o[2], obstacles):
+                    out[i], length[i] = o, path_length(o[2], p.weights)
                     break
-        todo = [i for i in range(len(goals)) if out[i] is None]
+        # the roadmap for every goal whose turn-drive-turn with the arm moving alongside (the
+        # shortest steering path) is blocked: its path around may be shorter than the others
+        todo = [i for i in range(len(goals)) if out[i] is None or out[i][0] != "together"]
         self.last_query = {}
         if todo:
             paths, st = self.roadmap.query(q0, goals[todo], obstacles.collision,
                                            lambda s: self.path_free(s, obstacles), rng)
             self.last_query = st.to_json()
             for i, r in zip(todo, paths):
-                if r is not None and self.path_free(r[1], obstacles):
+                if r is None:
+                    continue
+                if path_length(r[1], p.weights) < length[i] and self.path_free(r[1], obstacles):
                     out[i] = ("roadmap", r[0], r[1])
         for i in range(len(goals)):
             if out[i] is None and p.detour_steering:

@@ -39,6 +39,7 @@ from .clearance import (
     _vertical_cylinder_box_overlap,
     unpack,
 )
+from .rrt import _nearest
 
 #: states visited in the first, coarse pass over a path: every STRIDE-th (and the last)
 STRIDE = 8
@@ -46,7 +47,16 @@ STRIDE = 8
 
 @nb.njit(cache=True)
 def _wrap(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
+    """`motion.wrap_angle` with numpy's floating remainder (fmod, then the divisor's sign), so
+    the same bits."""
+    b = 2 * np.pi
+    m = np.fmod(a + np.pi, b)
+    if m != 0.0:
+        if m < 0.0:
+            m += b
+    else:
+        m = 0.0
+    return m - np.pi
 
 
 @nb.njit(cache=True)
@@ -329,18 +339,17 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
                 for m in range(M):
                     if kk < 0:  # a vertical cylinder
                         if pad >= 0.0 and e_exact[m] and e_zal[m] and _vertical_cylinder_box_overlap(
-                                gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m], e_h[m], EPS):
+                                gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m, EPS):
                             v = COLLIDING
                             break
                         if e_zal[m]:
-                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
-                                                       e_h[m])
+                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m)
                         else:
-                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) - g_bound[g]
+                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g]
                         if d <= pad + EPS:
                             v = UNKNOWN
                     else:
-                        d = _point_box(sw[kk, 0], sw[kk, 1], sw[kk, 2], e_R[m], e_p[m], e_h[m])
+                        d = _point_box(sw[kk, 0], sw[kk, 1], sw[kk, 2], e_R, e_p, e_h, m)
                         if pad >= 0.0 and e_exact[m] and d < s_in[kk] - EPS:
                             v = COLLIDING
                             break
@@ -350,3 +359,71 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
                     break
             out[i, t] = v
     return out
+
+
+@nb.njit(cache=True)
+def _sum8(d):
+    """sum of 8 terms in numpy's pairwise order (as rrt._nearest and weighted_dist)."""
+    return ((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7]))
+
+
+@nb.njit(cache=True)
+def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter):
+    """The extensions of `rrt.extend_batch` towards each of targets (B, 8) from the tree's
+    first n vertices Q[:n] as they stand, computed and checked in one call with the same
+    arithmetic as rrt._steer_edge and MotionPlanner.path_free: per target the nearest vertex,
+    the clipped steering target, the new vertex (the end of the edge's rollout), the verdict
+    FREE / COLLIDING / UNKNOWN (the caller asks the certificate and Drake), or -2 where the
+    target is at the vertex or the steering gives no controls (COLLIDING includes an edge that
+    leaves the arm's limits), and the edge's eq. 8 length (its steps summed in order: equal to
+    `motion.path_length`'s to ~1e-15 relative)."""
+    B = targets.shape[0]
+    near = np.empty(B, np.int64)
+    length = np.zeros(B)
+    aim = np.empty((B, 8))
+    new = np.empty((B, 8))
+    verdict = np.empty(B, np.int8)
+    model = unpack(F, I, H)
+    scratch = _scratch(model)
+    d = np.empty(8)
+    sq = np.empty(8)
+    for b in range(B):
+        i = _nearest(Q[:n], targets[b], w)
+        near[b] = i
+        for j in range(8):
+            d[j] = targets[b, j] - Q[i, j]
+        d[2] = _wrap(d[2])
+        for j in range(8):
+            sq[j] = w[j] * d[j] * d[j]
+        dist = math.sqrt(_sum8(sq))
+        if dist < 1e-9:
+            verdict[b] = -2
+            continue
+        f = min(1.0, step / dist)
+        for j in range(8):
+            aim[b, j] = Q[i, j] + d[j] * f
+        for j in range(5):
+            aim[b, 3 + j] = min(max(aim[b, 3 + j], arm_lo[j]), arm_hi[j])
+        c = steer_together(Q[i], aim[b], rc[0], rc[1], rc[2], rc[3])
+        if c.shape[0] == 0:
+            verdict[b] = -2
+            continue
+        states = rollout(Q[i], c, rc[0])
+        new[b] = states[-1]
+        for t in range(states.shape[0] - 1):  # eq. 8, each step's terms in numpy's order
+            for j in range(8):
+                e = states[t + 1, j] - states[t, j]
+                if j == 2:
+                    e = _wrap(e)
+                sq[j] = w[j] * e * e
+            length[b] += math.sqrt(_sum8(sq))
+        inside = True
+        for t in range(states.shape[0]):
+            for j in range(5):
+                if states[t, 3 + j] < arm_lo[j] - 1e-9 or states[t, 3 + j] > arm_hi[j] + 1e-9:
+                    inside = False
+        if not inside:
+            verdict[b] = COLLIDING
+            continue
+        verdict[b] = _verdict_of_states(interpolate(states, max_step), model, scratch, stride, counter)
+    return near, aim, new, verdict, length

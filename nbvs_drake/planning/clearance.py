@@ -252,45 +252,46 @@ def _body_poses(q, X_PF, axes):
     return T
 
 
-@nb.njit(cache=True)
-def _point_box(px, py, pz, R, p, h):
-    """Distance from a point to an oriented box (R: the box's axes as columns)."""
-    dx, dy, dz = px - p[0], py - p[1], pz - p[2]
+@nb.njit(cache=True, inline="always")
+def _point_box(px, py, pz, e_R, e_p, e_h, m):
+    """Distance from a point to the oriented box m (e_R[m]: its axes as columns). Scalar
+    indexing throughout: a sub-array view costs numba a reference count per use."""
+    dx, dy, dz = px - e_p[m, 0], py - e_p[m, 1], pz - e_p[m, 2]
     sq = 0.0
     for i in range(3):
-        e = abs(R[0, i] * dx + R[1, i] * dy + R[2, i] * dz) - h[i]
+        e = abs(e_R[m, 0, i] * dx + e_R[m, 1, i] * dy + e_R[m, 2, i] * dz) - e_h[m, i]
         if e > 0:
             sq += e * e
     return math.sqrt(sq)
 
 
-@nb.njit(cache=True)
-def _vertical_cylinder_box(px, py, pz, r, hh, R, p, h):
-    """Distance from a vertical cylinder (centre, radius r, half length hh) to a box turned
+@nb.njit(cache=True, inline="always")
+def _vertical_cylinder_box(px, py, pz, r, hh, e_R, e_p, e_h, m):
+    """Distance from a vertical cylinder (centre, radius r, half length hh) to the box m, turned
     only about z: exact (disc x interval against rectangle x interval)."""
-    dx, dy, dz = px - p[0], py - p[1], pz - p[2]
-    lx = R[0, 0] * dx + R[1, 0] * dy
-    ly = R[0, 1] * dx + R[1, 1] * dy
-    ex = max(abs(lx) - h[0], 0.0)
-    ey = max(abs(ly) - h[1], 0.0)
+    dx, dy, dz = px - e_p[m, 0], py - e_p[m, 1], pz - e_p[m, 2]
+    lx = e_R[m, 0, 0] * dx + e_R[m, 1, 0] * dy
+    ly = e_R[m, 0, 1] * dx + e_R[m, 1, 1] * dy
+    ex = max(abs(lx) - e_h[m, 0], 0.0)
+    ey = max(abs(ly) - e_h[m, 1], 0.0)
     gxy = max(math.sqrt(ex * ex + ey * ey) - r, 0.0)
-    gz = max(abs(dz) - h[2] - hh, 0.0)
+    gz = max(abs(dz) - e_h[m, 2] - hh, 0.0)
     return math.sqrt(gxy * gxy + gz * gz)
 
 
-@nb.njit(cache=True)
-def _vertical_cylinder_box_overlap(px, py, pz, r, hh, R, p, h, s):
-    """Whether the vertical cylinder and the box turned about z, each shrunk by s on every side,
-    still overlap (then the two reach s or more into each other)."""
-    dx, dy, dz = px - p[0], py - p[1], pz - p[2]
-    lx = R[0, 0] * dx + R[1, 0] * dy
-    ly = R[0, 1] * dx + R[1, 1] * dy
-    ex = max(abs(lx) - (h[0] - s), 0.0)
-    ey = max(abs(ly) - (h[1] - s), 0.0)
-    return math.sqrt(ex * ex + ey * ey) < r - s and abs(dz) < h[2] + hh - 2 * s
+@nb.njit(cache=True, inline="always")
+def _vertical_cylinder_box_overlap(px, py, pz, r, hh, e_R, e_p, e_h, m, s):
+    """Whether the vertical cylinder and the box m (turned about z), each shrunk by s on every
+    side, still overlap (then the two reach s or more into each other)."""
+    dx, dy, dz = px - e_p[m, 0], py - e_p[m, 1], pz - e_p[m, 2]
+    lx = e_R[m, 0, 0] * dx + e_R[m, 1, 0] * dy
+    ly = e_R[m, 0, 1] * dx + e_R[m, 1, 1] * dy
+    ex = max(abs(lx) - (e_h[m, 0] - s), 0.0)
+    ey = max(abs(ly) - (e_h[m, 1] - s), 0.0)
+    return math.sqrt(ex * ex + ey * ey) < r - s and abs(dz) < e_h[m, 2] + hh - 2 * s
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _point_vertical_cylinder(px, py, pz, cx, cy, cz, r, hh):
     gr = max(math.sqrt((px - cx) ** 2 + (py - cy) ** 2) - r, 0.0)
     gz = max(abs(pz - cz) - hh, 0.0)
@@ -365,24 +366,58 @@ def _scratch(model):
             np.empty((4, 4)))
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _pose_robot(qn, model, scratch):
     """Fills scratch with the robot's geometry poses (XG), their centres (gp) and the sphere
-    centres (sw) at the state qn (8,)."""
+    centres (sw) at the state qn (8,): `_body_poses_into` and the geometry and sphere
+    transforms, with the same arithmetic, written with scalar indexing (no sub-array views)."""
     X_PF, axes, g_body, g_X, s_geom, s_c = model[0], model[1], model[2], model[3], model[10], model[11]
     XG, gp, sw, T, tmp, rot = scratch
-    _body_poses_into(qn, X_PF, axes, T, tmp, rot)
+    c, s = math.cos(qn[2]), math.sin(qn[2])
+    for i in range(4):
+        for j in range(4):
+            T[0, i, j] = 0.0
+    T[0, 0, 0], T[0, 0, 1], T[0, 1, 0], T[0, 1, 1] = c, -s, s, c
+    T[0, 2, 2] = T[0, 3, 3] = 1.0
+    T[0, 0, 3], T[0, 1, 3] = qn[0], qn[1]
+    for b in range(5):
+        for i in range(3):  # tmp = T[b] @ X_PF[b]
+            for j in range(4):
+                tmp[i, j] = T[b, i, 0] * X_PF[b, 0, j] + T[b, i, 1] * X_PF[b, 1, j] + T[b, i, 2] * X_PF[b, 2, j]
+            tmp[i, 3] += T[b, i, 3]
+        k0, k1, k2 = axes[b, 0], axes[b, 1], axes[b, 2]  # the rotation of `_rot`
+        sn, cs = math.sin(qn[3 + b]), math.cos(qn[3 + b])
+        v = 1.0 - cs
+        r00 = 1.0 + v * (-k2 * k2 - k1 * k1)
+        r01 = -sn * k2 + v * k0 * k1
+        r02 = sn * k1 + v * k0 * k2
+        r10 = sn * k2 + v * k0 * k1
+        r11 = 1.0 + v * (-k2 * k2 - k0 * k0)
+        r12 = -sn * k0 + v * k1 * k2
+        r20 = -sn * k1 + v * k0 * k2
+        r21 = sn * k0 + v * k1 * k2
+        r22 = 1.0 + v * (-k1 * k1 - k0 * k0)
+        for i in range(3):  # T[b + 1] = tmp @ rot (as `_mul`: the zero terms included)
+            T[b + 1, i, 0] = tmp[i, 0] * r00 + tmp[i, 1] * r10 + tmp[i, 2] * r20
+            T[b + 1, i, 1] = tmp[i, 0] * r01 + tmp[i, 1] * r11 + tmp[i, 2] * r21
+            T[b + 1, i, 2] = tmp[i, 0] * r02 + tmp[i, 1] * r12 + tmp[i, 2] * r22
+            T[b + 1, i, 3] = (tmp[i, 0] * 0.0 + tmp[i, 1] * 0.0 + tmp[i, 2] * 0.0) + tmp[i, 3]
+        T[b + 1, 3, 0] = T[b + 1, 3, 1] = T[b + 1, 3, 2] = 0.0
+        T[b + 1, 3, 3] = 1.0
     for g in range(g_body.shape[0]):
-        _mul(T[g_body[g]], g_X[g], XG[g])
+        a = g_body[g]
         for i in range(3):
+            for j in range(4):
+                XG[g, i, j] = T[a, i, 0] * g_X[g, 0, j] + T[a, i, 1] * g_X[g, 1, j] + T[a, i, 2] * g_X[g, 2, j]
+            XG[g, i, 3] += T[a, i, 3]
             gp[g, i] = XG[g, i, 3]
     for k in range(s_geom.shape[0]):
-        X = XG[s_geom[k]]
+        g = s_geom[k]
         for i in range(3):
-            sw[k, i] = X[i, 0] * s_c[k, 0] + X[i, 1] * s_c[k, 1] + X[i, 2] * s_c[k, 2] + X[i, 3]
+            sw[k, i] = XG[g, i, 0] * s_c[k, 0] + XG[g, i, 1] * s_c[k, 1] + XG[g, i, 2] * s_c[k, 2] + XG[g, i, 3]
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, inline="always")
 def _classify_one(qn, model, scratch) -> int:
     """FREE, COLLIDING or UNKNOWN for one state qn (8,) (see `FreeCertificate.classify`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
@@ -395,29 +430,28 @@ def _classify_one(qn, model, scratch) -> int:
         if not g_pad[g] >= 0.0:
             continue
         for m in range(M):
-            if not e_exact[m] or _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) >= g_bound[g]:
+            if not e_exact[m] or _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) >= g_bound[g]:
                 continue
             if g_vert[g] and e_zal[m] and _vertical_cylinder_box_overlap(
-                    gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m], e_h[m], EPS):
+                    gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m, EPS):
                 return COLLIDING
             for k in range(s0[g], s0[g + 1]):
-                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) < s_in[k] - EPS:
+                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) < s_in[k] - EPS:
                     return COLLIDING
     for g in range(G):
         pad = g_pad[g]
         if pad == -np.inf:
             continue
         for m in range(M):
-            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m])
+            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m)
             if d > g_bound[g] + pad + EPS:
                 continue
             if g_vert[g] and e_zal[m]:
-                if _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
-                                          e_h[m]) <= pad + EPS:
+                if _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m) <= pad + EPS:
                     return UNKNOWN
                 continue
             for k in range(s0[g], s0[g + 1]):
-                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m]) <= s_rho[k] + pad + EPS:
+                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) <= s_rho[k] + pad + EPS:
                     return UNKNOWN
     for j in range(P):
         a, c = pairs[j, 0], pairs[j, 1]
@@ -481,10 +515,9 @@ def _part_clearances(q, F, I, H, c, r):
                 if pad != -np.inf:
                     for m in range(M):
                         if e_zal[m]:
-                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R[m], e_p[m],
-                                                       e_h[m])
+                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m)
                         else:
-                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R[m], e_p[m], e_h[m]) - g_bound[g]
+                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g]
                         c[n, j] = min(c[n, j], d - pad - EPS)
                 j += 1
                 continue
@@ -493,6 +526,6 @@ def _part_clearances(q, F, I, H, c, r):
                 r[n, j] = math.hypot(sw[k, 0] - qn[0], sw[k, 1] - qn[1]) + s_rho[k]
                 if pad != -np.inf:
                     for m in range(M):
-                        c[n, j] = min(c[n, j], _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R[m], e_p[m], e_h[m])
+                        c[n, j] = min(c[n, j], _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m)
                                       - s_rho[k] - pad - EPS)
                 j += 1

@@ -71,12 +71,16 @@ def edge(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> tuple[np.ndarray, n
 class Tree:
     """Vertices (states), parent indices and the edge controls from each parent."""
 
-    def __init__(self, root: np.ndarray, capacity: int):
+    def __init__(self, root: np.ndarray, capacity: int, rc: RobotConfig | None = None):
         self.q = np.empty((capacity + 1, 8))
         self.q[0] = root
         self.parent = np.full(capacity + 1, -1, dtype=np.int64)
         self.cost = np.zeros(capacity + 1)  # eq. 8 path length from the root
-        self.controls: list[np.ndarray] = [np.zeros((0, 7))]
+        #: each vertex's edge controls from its parent, or None: steer_together(parent, aim[i])
+        #: computed when a path needs it (`add_lazy`)
+        self.controls: list[np.ndarray | None] = [np.zeros((0, 7))]
+        self.aim = np.empty((capacity + 1, 8))
+        self.rc = rc
         self.n = 1
 
     def nearest(self, q: np.ndarray, w: np.ndarray) -> int:
@@ -91,6 +95,25 @@ class Tree:
         self.n += 1
         return i
 
+    def add_lazy(self, parent: int, q: np.ndarray, aim: np.ndarray, length: float) -> int:
+        """A vertex whose edge is the 'together' steering from its parent to `aim` (its controls
+        are computed by `controls_to` when a path needs them, as `edge` computes them)."""
+        i = self.n
+        self.q[i] = q
+        self.aim[i] = aim
+        self.parent[i] = parent
+        self.cost[i] = self.cost[parent] + length
+        self.controls.append(None)
+        self.n += 1
+        return i
+
+    def edge_controls(self, i: int) -> np.ndarray:
+        c = self.controls[i]
+        if c is None:
+            c = steer_together(self.q[self.parent[i]], self.aim[i], self.rc)
+            self.controls[i] = c
+        return c
+
     def path_to(self, i: int) -> list[int]:
         out = []
         while i >= 0:
@@ -100,7 +123,7 @@ class Tree:
 
     def controls_to(self, i: int) -> np.ndarray:
         idx = self.path_to(i)
-        parts = [self.controls[j] for j in idx[1:]]
+        parts = [self.edge_controls(j) for j in idx[1:]]
         return np.concatenate(parts) if parts else np.zeros((0, 7))
 
 

@@ -19,8 +19,10 @@ PRM in the spirit of OMPL's LazyPRM, with the edges of the steering function).
   the model cannot decide); blocked ones are removed and the search is repeated until every
   reachable goal has a checked path. A goal that is not connected costs its own connection edges
   and one bounded growth round (`GROWTH_SAMPLES` states around it), never a full tree search.
-- **Paths** are shortened (greedy shortcuts between their vertices, checked the same way) and
-  rebuilt as one control sequence from the start, which the caller checks again with Drake.
+- **Paths** are shortened (greedy shortcuts between their vertices, then each intermediate
+  vertex turned to face the next and given the goal's arm where that is free and shorter, all
+  checked the same way) and rebuilt as one control sequence from the start, which the caller
+  checks again with Drake.
 """
 
 from __future__ import annotations
@@ -285,20 +287,48 @@ class Roadmap:
                     left.append(i)
                     continue
                 ch = self._shortcut(ch, collision, cache, st)
-                out[i] = self._controls(ch)
+                out[i] = self._controls(self._smooth(self.V[ch], collision, st))
             self._truncate(n_perm)
             todo = np.array(left, np.int64)
         st.reached = sum(r is not None for r in out)
         return out, st
 
-    def _controls(self, chain: list[int]):
-        """(controls, states) along the chain, each edge steered from where the last one ended."""
+    def _smooth(self, Q: np.ndarray, collision, st: QueryStats) -> np.ndarray:
+        """The path's intermediate states (rows of Q between the start and the goal) turned to
+        face the next one (the base then drives on without turning at them) and given the
+        goal's arm (the arm moves once), each change kept when both its edges are proved free
+        (bulk verdict FREE) and the path gets shorter (eq. 8)."""
+        Q = np.array(Q, float)
+        for i in range(1, len(Q) - 1):
+            d = Q[i + 1, :2] - Q[i, :2]
+            if np.hypot(*d) < 1e-4:
+                continue
+            best = None
+            for arm in (Q[-1, 3:], Q[i, 3:]):
+                cand = Q[i].copy()
+                cand[2] = np.arctan2(d[1], d[0])
+                cand[3:] = arm
+                A = np.stack([Q[i - 1], cand])
+                B = np.stack([cand, Q[i + 1]])
+                st.shortcuts_checked += 2
+                old = bulk.edge_lengths(np.stack([Q[i - 1], Q[i]]), np.stack([Q[i], Q[i + 1]]), self.w, self.rc).sum()
+                new = bulk.edge_lengths(A, B, self.w, self.rc).sum()
+                if new < old and np.all(collision.bulk_edges(A, B, self.rc) == FREE):
+                    best = cand
+                    break
+            if best is not None:
+                Q[i] = best
+        return Q
+
+    def _controls(self, Q: np.ndarray):
+        """(controls, states) through the states Q, each edge steered from where the last one
+        ended."""
         rcfg = self.sc.robot
-        q0 = self.V[chain[0]]
+        q0 = Q[0]
         q = q0
         parts = []
-        for j in chain[1:]:
-            c = steer_together(q, self.V[j], rcfg)
+        for target in Q[1:]:
+            c = steer_together(q, target, rcfg)
             parts.append(c)
             q = rollout(q, c, rcfg.control_dt)[-1]
         controls = np.concatenate(parts) if parts else np.zeros((0, 7))

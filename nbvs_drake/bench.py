@@ -349,7 +349,8 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
     alone, in the same run and with the same verdicts: random states of the default scene
     (W_box as the obstacle) and of the cluttered room (us per state, the share the
     certificate proves free), and the Object Reconstruction Tree's growth from the default
-    start (the same tree; seconds)."""
+    start with Drake alone, with the certificate and with the numba growth (the same tree;
+    seconds)."""
     from .planning.motion_planner import MotionPlanner, ObstacleModel
     from .planning.ort import ORTPlanner
     out = {}
@@ -369,18 +370,24 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
     sc = load_scenario()
     sc.planner.ort_vertices = ort_vertices
     sampler = StateSampler(sc, kin)
-    motion = MotionPlanner(sc, kin, sampler)
-    ort = ORTPlanner(sc, sampler, None, None, motion, None, 0.0)
     times, trees = {}, {}
-    for label, cert in (("drake", False), ("certified", True)):
+    # Drake alone; the certificate with the Python growth (rrt.extend_batch, as before the bulk
+    # kernels); the numba growth (bulk.tree_extensions)
+    for label, cert, bulk_checks in (("drake", False, False), ("certified", True, False), ("bulk", True, True)):
+        motion = MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks)
+        ort = ORTPlanner(sc, sampler, None, None, motion, None, 0.0)
         obstacles = ObstacleModel(CollisionModel(sc, kin, certificate=cert))
         t = time.perf_counter()
         trees[label], _ = ort.grow(np.array(sc.robot.start, float), np.random.default_rng(seed), obstacles)
         times[label] = time.perf_counter() - t
-    a, b = trees["drake"], trees["certified"]
-    assert a.n == b.n and np.array_equal(a.q[: a.n], b.q[: b.n]), "the certificate changed the tree"
-    out["ort_growth_s"] = {"drake": times["drake"], "certified": times["certified"],
-                           "speedup": times["drake"] / times["certified"], "vertices": a.n - 1}
+    a = trees["drake"]
+    for label in ("certified", "bulk"):
+        b = trees[label]
+        assert a.n == b.n and np.array_equal(a.parent[: a.n], b.parent[: b.n]), f"{label} changed the tree"
+        assert np.allclose(a.q[: a.n], b.q[: b.n], rtol=0, atol=1e-12), f"{label} moved a vertex"
+    out["ort_growth_s"] = {"drake": times["drake"], "certified": times["certified"], "bulk": times["bulk"],
+                           "speedup": times["drake"] / times["certified"],
+                           "bulk_speedup": times["certified"] / times["bulk"], "vertices": a.n - 1}
     return out
 
 

@@ -217,3 +217,55 @@ def test_motion_planner_setting_is_checked():
     with pytest.raises(ScenarioError, match="planner.motion_planner"):
         load_scenario(settings=["planner.motion_planner=prm"])
     assert load_scenario("cluttered_room").planner.motion_planner == "roadmap"
+
+
+def test_numba_tree_growth_grows_the_python_growths_tree(kin):
+    """The ORT's batched growth in numba (bulk.tree_extensions) against rrt.extend_batch: the
+    same parents, vertices equal to 1e-12 (numpy's SIMD cos and sin differ from libm's in the
+    last bit), the same tree paths."""
+    from nbvs_drake.planning.ort import ORTPlanner
+    sc = load_scenario()
+    sc.planner.ort_vertices = 400
+    sampler = StateSampler(sc, kin)
+    obstacles = ObstacleModel(CollisionModel(sc, kin))
+    trees = []
+    for bulk_checks in (False, True):
+        ort = ORTPlanner(sc, sampler, None, None, MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks), None, 0.0)
+        trees.append(ort.grow(np.array(sc.robot.start), np.random.default_rng(4), obstacles)[0])
+    a, b = trees
+    assert a.n == b.n == 401
+    np.testing.assert_array_equal(a.parent[: a.n], b.parent[: b.n])
+    np.testing.assert_allclose(a.q[: a.n], b.q[: b.n], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(a.cost[: a.n], b.cost[: b.n], rtol=1e-12)
+    np.testing.assert_allclose(a.controls_to(a.n - 1), b.controls_to(b.n - 1), rtol=0, atol=1e-12)
+
+
+def test_expected_utility_with_bulk_rollout_checks_is_algorithm_1s(kin, clutter):
+    """The same candidates feasible, with the same expected utility, whether the rollouts are
+    checked coarse to fine with the clearance bound or state by state."""
+    from nbvs_drake.planning.interface import PlanRequest, PlanResult
+    from nbvs_drake.planning.utility import ExpectedUtilityScore
+    sc, model = clutter
+    sc = copy.deepcopy(sc)
+    sc.planner.eu_samples = 120
+    sampler = StateSampler(sc, kin)
+    rng = np.random.default_rng(8)
+    goals = sampler.generate(rng)[0]
+    goals = goals[model.free(goals)][:12]
+    start = np.array(sc.robot.start)
+    obstacles = ObstacleModel(model)
+    found = MotionPlanner(sc, kin, sampler).connect_many(start, goals, obstacles, rng)
+    verdicts = []
+    for bulk_checks in (True, False):
+        eu = ExpectedUtilityScore(sc, None, MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks), None)
+        eu.state_utility = lambda omap, s, un_total, dist, registration=True: s[:, 0] * dist
+        out = []
+        for g, f in zip(goals, found):
+            if f is None:
+                continue
+            cand = PlanResult("ok", g, f[1], f[2], f[0], 1.0, {"dist": 1.0})
+            r = eu.expected(PlanRequest(None, start, np.random.default_rng(0)), cand, obstacles, 1)
+            out.append((r.feasible, r.value))
+        verdicts.append(out)
+    assert verdicts[0] == verdicts[1]
+    assert {True, False} <= {f for f, _ in verdicts[0]}  # both kinds of candidate are there

@@ -118,7 +118,7 @@ class ExpectedUtilityScore:
             request.q_start, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, request.rng,
             free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration),
             weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=request.start_cov,
-            block_free=block_free)
+            block_free=block_free if self.motion.bulk_checks else None)
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
               un_total: int) -> tuple[list[PlanResult], int]:

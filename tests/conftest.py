@@ -51,3 +51,24 @@ def small_scenario(seed: int = 0, scans: int = 3, n_candidates: int = 600, gt_po
     sc.planner.n_candidates = n_candidates
     sc.scene.gt_points = gt_points
     return sc
+
+
+def drake_free(model, q):
+    """Drake's own verdicts (the CollisionModel's checker, no certificate) for states (N, 8)."""
+    q = np.atleast_2d(q)
+    return np.asarray(model.checker.CheckConfigsCollisionFree(list(model.kin.to_positions(q)), parallelize=False),
+                      bool)
+
+
+def near_contacts(model, q, free, n_pairs=150, steps=24, both=False):
+    """States on the free side of a contact (and, with both, on the colliding side too), within
+    2^-steps of the segment between a free and a colliding state (bisection with Drake's
+    verdicts)."""
+    a, b = q[free][:n_pairs], q[~free][:n_pairs]
+    m = min(len(a), len(b))
+    a, b = a[:m].copy(), b[:m].copy()
+    for _ in range(steps):
+        mid = 0.5 * (a + b)
+        ok = drake_free(model, mid)
+        a[ok], b[~ok] = mid[ok], mid[~ok]
+    return np.concatenate([a, b]) if both else a

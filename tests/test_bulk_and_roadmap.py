@@ -9,7 +9,7 @@ import copy
 
 import numpy as np
 import pytest
-from conftest import random_states
+from conftest import drake_free, near_contacts, random_states
 
 from nbvs_drake.config import load_scenario
 from nbvs_drake.errors import ScenarioError
@@ -20,23 +20,6 @@ from nbvs_drake.planning.clearance import COLLIDING, FREE, UNKNOWN
 from nbvs_drake.planning.collision import CollisionModel
 from nbvs_drake.planning.motion_planner import MotionPlanner, ObstacleModel
 from nbvs_drake.planning.roadmap import GROWTH_SAMPLES
-
-
-def _drake(model, q):
-    q = np.atleast_2d(q)
-    return np.asarray(model.checker.CheckConfigsCollisionFree(list(model.kin.to_positions(q)), parallelize=False),
-                      bool)
-
-
-def _near_contacts(model, q, free, n_pairs=200, steps=22):
-    a, b = q[free][:n_pairs], q[~free][:n_pairs]
-    m = min(len(a), len(b))
-    a, b = a[:m].copy(), b[:m].copy()
-    for _ in range(steps):
-        mid = 0.5 * (a + b)
-        ok = _drake(model, mid)
-        a[ok], b[~ok] = mid[ok], mid[~ok]
-    return np.concatenate([a, b])
 
 
 @pytest.fixture(scope="module")
@@ -52,12 +35,12 @@ def voxels(kin, first_scan_map):
 
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
-def test_bulk_states_and_edges_agree_with_drake(kin, world, request):
+def test_bulk_states_and_edges_agree_withdrake_free(kin, world, request):
     sc, model = request.getfixturevalue(world)
     q = random_states(kin, 2000, seed=21)
-    free = _drake(model, q)
-    q = np.concatenate([q, _near_contacts(model, q, free)])
-    drake = _drake(model, q)
+    free = drake_free(model, q)
+    q = np.concatenate([q, near_contacts(model, q, free, n_pairs=200, steps=22, both=True)])
+    drake = drake_free(model, q)
     v = model.bulk_classify(q)
     assert not np.any((v == FREE) & ~drake) and not np.any((v == COLLIDING) & drake)
     assert np.mean(v[: 2000] != UNKNOWN) > 0.9  # it decides most states itself
@@ -69,7 +52,7 @@ def test_bulk_states_and_edges_agree_with_drake(kin, world, request):
     verdict = model.bulk_edges(a, b, bulk.robot_params(sc.robot))
     for x, y, ve in zip(a, b, verdict):
         states = CollisionModel.interpolate(rollout(x, steer_together(x, y, sc.robot), sc.robot.control_dt))
-        ok = bool(np.all(_drake(model, states)))
+        ok = bool(np.all(drake_free(model, states)))
         assert ve != FREE or ok
         assert ve != COLLIDING or not ok
     assert {FREE, COLLIDING} <= set(verdict.tolist())
@@ -87,27 +70,27 @@ def test_numba_steering_is_the_motion_models(kin, clutter):
         np.testing.assert_array_equal(bulk.interpolate(s, 0.02), CollisionModel.interpolate(s))
 
 
-def test_rollout_verdicts_agree_with_drake(kin, clutter):
+def test_rollout_verdicts_agree_withdrake_free(kin, clutter):
     """Noisy rollouts (Table 4) of paths that pass close to the chairs and the table: the
     clearance-bounded verdicts are Drake's wherever they decide."""
     sc, model = clutter
     sampler = StateSampler(sc, kin)
     rng = np.random.default_rng(5)
     goals = sampler.sample_states(rng, 400)
-    goals = goals[_drake(model, goals)]
+    goals = goals[drake_free(model, goals)]
     start = np.array(sc.robot.start)
     n_checked = n_decided = 0
     cert = model.certificate
     for g in goals[:40]:
         controls = steer_together(start, g, sc.robot)
         nominal = rollout(start, controls, sc.robot.control_dt)
-        if not all(_drake(model, CollisionModel.interpolate(nominal))):
+        if not all(drake_free(model, CollisionModel.interpolate(nominal))):
             continue
         eps = sample_control_noise(rng, sc.noise, controls, 40)
         states = rollout(start, controls[None] + eps, sc.robot.control_dt)[:, 1:]
         c, r = cert.part_clearances(nominal[1:])
         v = bulk.rollout_verdicts(np.ascontiguousarray(states), nominal[1:], c, r, *cert.model, model.counter)
-        drake = _drake(model, states.reshape(-1, 8)).reshape(v.shape)
+        drake = drake_free(model, states.reshape(-1, 8)).reshape(v.shape)
         assert not np.any((v == FREE) & ~drake) and not np.any((v == COLLIDING) & drake)
         n_checked += v.size
         n_decided += int(np.sum(v != UNKNOWN))
@@ -142,7 +125,7 @@ def test_roadmap_paths_are_free_by_drake_and_reach_their_goals(roadmap_plan):
         d = states[-1] - g
         d[2] = wrap_angle(d[2])  # the heading may end a full turn away
         np.testing.assert_allclose(d, 0.0, atol=1e-9)
-        assert np.all(_drake(model, CollisionModel.interpolate(states))), kind
+        assert np.all(drake_free(model, CollisionModel.interpolate(states))), kind
 
 
 def test_roadmap_is_kept_and_shortens_the_rrts_paths(roadmap_plan, kin):
@@ -210,7 +193,7 @@ def test_an_edge_through_space_found_occupied_is_not_used(kin, clutter):
     assert not np.all(blocked.free(CollisionModel.interpolate(p1[2])))
     p2 = motion.connect_many(q0, goal[None], ObstacleModel(blocked), np.random.default_rng(0))[0]
     assert p2 is not None
-    assert np.all(_drake(blocked, CollisionModel.interpolate(p2[2])))
+    assert np.all(drake_free(blocked, CollisionModel.interpolate(p2[2])))
 
 
 def test_motion_planner_setting_is_checked():

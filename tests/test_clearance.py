@@ -6,30 +6,12 @@ the executed-motion checks build), and it does prove most free states free."""
 
 import numpy as np
 import pytest
-from conftest import random_states
+from conftest import drake_free, near_contacts, random_states
 
 from nbvs_drake.config import load_scenario
 from nbvs_drake.objects import build_object
 from nbvs_drake.planning.clearance import COLLIDING, FREE, ROBOT_BODIES
 from nbvs_drake.planning.collision import CollisionModel
-
-
-def _drake(model, q):
-    return np.asarray(model.checker.CheckConfigsCollisionFree(list(model.kin.to_positions(q)), parallelize=False),
-                      bool)
-
-
-def _near_contacts(model, q, free, n_pairs=150, steps=24):
-    """States on the free side of a contact, within 2^-steps of the segment between a free and
-    a colliding state (bisection with Drake's verdicts)."""
-    a, b = q[free][:n_pairs], q[~free][:n_pairs]
-    m = min(len(a), len(b))
-    a, b = a[:m].copy(), b[:m].copy()
-    for _ in range(steps):
-        mid = 0.5 * (a + b)
-        ok = _drake(model, mid)
-        a[ok], b[~ok] = mid[ok], mid[~ok]
-    return a
 
 
 def test_forward_kinematics_is_drakes(kin):
@@ -58,10 +40,10 @@ def test_the_certificate_never_frees_a_state_drake_finds_in_collision(kin, tmp_p
     for name, model in _worlds(kin, tmp_path, first_scan_map):
         assert model.certificate is not None, name
         q = random_states(kin, 4000, seed=11)
-        free = _drake(model, q)
-        edge = _near_contacts(model, q, free)
-        q_all = np.concatenate([q, edge, _near_contacts(model, q[::-1], free[::-1])])
-        drake = _drake(model, q_all)
+        free = drake_free(model, q)
+        edge = near_contacts(model, q, free)
+        q_all = np.concatenate([q, edge, near_contacts(model, q[::-1], free[::-1])])
+        drake = drake_free(model, q_all)
         verdict = model.certificate.classify(q_all)
         cert, hit = verdict == FREE, verdict == COLLIDING
         assert not np.any(cert & ~drake), f"{name}: {int(np.sum(cert & ~drake))} states certified but in collision"

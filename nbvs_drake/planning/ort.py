@@ -80,7 +80,7 @@ class ORTPlanner:
         for b in np.flatnonzero(verdict == FREE):
             if tree.n >= tree.q.shape[0]:
                 break
-            tree.add_lazy(int(near[b]), new[b], aim[b], float(length[b]))
+            tree.add(int(near[b]), new[b], None, float(length[b]), aim[b])
 
     def plan(self, request: PlanRequest) -> PlanResult:
         p = self.sc.planner

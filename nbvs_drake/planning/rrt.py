@@ -77,7 +77,7 @@ class Tree:
         self.parent = np.full(capacity + 1, -1, dtype=np.int64)
         self.cost = np.zeros(capacity + 1)  # eq. 8 path length from the root
         #: each vertex's edge controls from its parent, or None: steer_together(parent, aim[i])
-        #: computed when a path needs it (`add_lazy`)
+        #: computed when a path needs it (`add`)
         self.controls: list[np.ndarray | None] = [np.zeros((0, 7))]
         self.aim = np.empty((capacity + 1, 8))
         self.rc = rc
@@ -86,24 +86,18 @@ class Tree:
     def nearest(self, q: np.ndarray, w: np.ndarray) -> int:
         return int(_nearest(self.q[: self.n], np.asarray(q, float), np.asarray(w, float)))
 
-    def add(self, parent: int, q: np.ndarray, controls: np.ndarray, length: float) -> int:
+    def add(self, parent: int, q: np.ndarray, controls: np.ndarray | None, length: float,
+            aim: np.ndarray | None = None) -> int:
+        """A vertex q reached from `parent` by `controls`; or, with controls None, by the
+        'together' steering to `aim` (computed by `controls_to` when a path needs it, as `edge`
+        computes it)."""
         i = self.n
         self.q[i] = q
+        if aim is not None:
+            self.aim[i] = aim
         self.parent[i] = parent
         self.cost[i] = self.cost[parent] + length
         self.controls.append(controls)
-        self.n += 1
-        return i
-
-    def add_lazy(self, parent: int, q: np.ndarray, aim: np.ndarray, length: float) -> int:
-        """A vertex whose edge is the 'together' steering from its parent to `aim` (its controls
-        are computed by `controls_to` when a path needs them, as `edge` computes them)."""
-        i = self.n
-        self.q[i] = q
-        self.aim[i] = aim
-        self.parent[i] = parent
-        self.cost[i] = self.cost[parent] + length
-        self.controls.append(None)
         self.n += 1
         return i
 

@@ -428,6 +428,15 @@ def test_run_records_continue_a_study_in_another_output_folder(tmp_path):
     assert "1 restored from" in fourth.stdout and "0 to run" in fourth.stdout
     run = json.loads((tmp_path / "d" / "other" / "runs" / "same_s1" / "run.json").read_text())
     assert run["shared_from"] == "tiny/0.3_s1.json.gz" and run["run_id"] == "same_s1"
+    # the definition now pins a field at the value its scenario gives it anyway (other overrides,
+    # the same settings): its own record is restored and recorded again with the new overrides
+    pinned = tmp_path / "pinned.yaml"
+    pinned.write_text(TINY.replace("[1, 2]", "[1]").replace("scene.gt_points=3000]",
+                                                           "scene.gt_points=3000, planner.motion_planner=roadmap]"))
+    fifth = _cli(str(pinned), "--jobs", "1", "--out", str(tmp_path / "e"), "--records", str(rec_root))
+    assert fifth.returncode == 0, fifth.stdout + fifth.stderr
+    assert "1 restored from" in fifth.stdout and "0 to run" in fifth.stdout
+    assert "planner.motion_planner=roadmap" in read_record(f)["run"]["overrides"]
     assert read_record(rec_root / "other" / "same_s1.json.gz")["summary"] == rec["summary"]
     # a different run (another seed) is not taken for it
     fifth = _cli(str(other), "--seeds", "2", "--jobs", "1", "--out", str(tmp_path / "d"), "--records", str(rec_root),

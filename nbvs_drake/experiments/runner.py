@@ -546,12 +546,35 @@ def _run_key(run: dict) -> dict:
     return {"scenario": run.get("scenario"), "seed": run.get("seed"), "overrides": run.get("overrides")}
 
 
+def _same_settings(rec: dict, spec: RunSpec) -> bool:
+    """Whether a run record's scenario (its scenario.yaml, read with today's schema) has the
+    settings the spec resolves to now."""
+    import tempfile
+
+    from ..errors import NbvsError
+    from .definition import settings_of
+    text = rec.get("scenario_yaml")
+    if text is None:
+        return False
+    from ..config import load_scenario
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / "scenario.yaml"
+        f.write_text(text)
+        try:
+            was = load_scenario(f)
+        except NbvsError:
+            return False
+    return settings_of(was) == settings_of(spec.resolve())
+
+
 def _restore_records(batch: Batch, specs, records, folder: str) -> int:
     """Restores the recorded runs that batch's folder lacks, and sets batch.records: each
     run's own record (records/<folder>/<run>.json.gz), or else the record of the same run made
     by another experiment or under another run name (equal settings, `records.RecordIndex`),
-    which is then also recorded under this run's name. A record of its own made with other settings than its spec is
-    refused, as a run folder is. Returns the number restored."""
+    which is then also recorded under this run's name. A record of its own made with other
+    overrides than its spec asks is restored when its scenario has the same settings (and
+    recorded again with the spec's overrides), and refused otherwise, as a run folder is.
+    Returns the number restored."""
     if records is None:
         return 0
     from .records import RecordIndex, read_record, restore
@@ -574,8 +597,13 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
             rec["run"] = dict(rec.get("run") or {}, **spec.to_json(), shared_from=f"{src.parent.name}/{src.name}")
         key = _run_key(rec.get("run") or {})
         if key != spec.key():
-            raise ExperimentError(f"run record {src} was made with other settings ({key}) than this definition "
-                                  f"asks ({spec.key()}); remove it or use other --records")
+            if not _same_settings(rec, spec):
+                raise ExperimentError(f"run record {src} was made with other settings ({key}) than this definition "
+                                      f"asks ({spec.key()}); remove it or use other --records")
+            # its overrides differ, its scenario does not: a definition that now pins what its
+            # scenario file used to leave to the default (e.g. planner.motion_planner)
+            rec["run"] = dict(rec.get("run") or {}, **spec.to_json(), recorded_as=key)
+            shared = True  # recorded again under the definition's overrides
         final = batch.final(spec)
         if final.exists():
             shutil.rmtree(final)

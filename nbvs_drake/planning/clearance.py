@@ -417,7 +417,7 @@ def _pose_robot(qn, model, scratch):
             sw[k, i] = XG[g, i, 0] * s_c[k, 0] + XG[g, i, 1] * s_c[k, 1] + XG[g, i, 2] * s_c[k, 2] + XG[g, i, 3]
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _classify_one(qn, model, scratch) -> int:
     """FREE, COLLIDING or UNKNOWN for one state qn (8,) (see `FreeCertificate.classify`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,

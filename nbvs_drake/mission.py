@@ -164,8 +164,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
             "position_filter": stage_total("position_s"),
             "visibility": stage_total("visibility_s"),
             # the path search and every collision check (the expected utility's rollouts' included)
-            "motion_planning": float(sum(r["plan"].get("times", {}).get(
-                "motion_planning_s", r["plan"].get("times", {}).get("motion_s", 0.0)) for r in records)),
+            "motion_planning": stage_total("motion_planning_s"),
             # candidate views (and the expected utility's rollouts' final views) scored
             "view_evaluation": stage_total("view_evaluation_s"),
             "map_update": float(sum(r["scan"].get("update_s", 0.0) for r in records)),

@@ -89,6 +89,22 @@ def settings_key(sc) -> str:
     return json.dumps(settings_of(sc), sort_keys=True, default=str)
 
 
+def record_scenario(rec: dict):
+    """The scenario a record's run was made with (its scenario.yaml, read with today's schema:
+    a field added since takes its default), or None when the record has none. Raises the
+    loader's ScenarioError when it cannot be read."""
+    import tempfile
+
+    from ..config import load_scenario
+    text = rec.get("scenario_yaml")
+    if text is None:
+        return None
+    with tempfile.TemporaryDirectory() as tmp:
+        f = Path(tmp) / "scenario.yaml"
+        f.write_text(text)
+        return load_scenario(f)
+
+
 class RecordIndex:
     """The records of a records folder by the settings of the runs they hold (`settings_key`
     of each record's scenario.yaml), read once on the first lookup: a run that one experiment
@@ -101,22 +117,15 @@ class RecordIndex:
         self.unreadable: list[str] = []
 
     def _build(self) -> dict[str, list[Path]]:
-        import tempfile
-
-        from ..config import load_scenario
         from ..errors import NbvsError
         out: dict[str, list[Path]] = {}
-        with tempfile.TemporaryDirectory() as tmp:
-            f = Path(tmp) / "scenario.yaml"
-            for path in sorted(self.root.glob(f"*/*{SUFFIX}")):
-                try:
-                    text = read_record(path).get("scenario_yaml")
-                    if text is None:
-                        continue
-                    f.write_text(text)
-                    out.setdefault(settings_key(load_scenario(f)), []).append(path)
-                except NbvsError as e:  # ExperimentError, ScenarioError: not a lookup's business
-                    self.unreadable.append(f"{path}: {e}")
+        for path in sorted(self.root.glob(f"*/*{SUFFIX}")):
+            try:
+                sc = record_scenario(read_record(path))
+                if sc is not None:
+                    out.setdefault(settings_key(sc), []).append(path)
+            except NbvsError as e:  # ExperimentError, ScenarioError: not a lookup's business
+                self.unreadable.append(f"{path}: {e}")
         return out
 
     def find(self, sc, exclude: Path | None = None) -> Path | None:

@@ -547,24 +547,14 @@ def _run_key(run: dict) -> dict:
 
 
 def _same_settings(rec: dict, spec: RunSpec) -> bool:
-    """Whether a run record's scenario (its scenario.yaml, read with today's schema) has the
-    settings the spec resolves to now."""
-    import tempfile
-
+    """Whether a run record's scenario has the settings the spec resolves to now."""
     from ..errors import NbvsError
-    from .definition import settings_of
-    text = rec.get("scenario_yaml")
-    if text is None:
+    from .records import record_scenario, settings_key
+    try:
+        was = record_scenario(rec)
+    except NbvsError:
         return False
-    from ..config import load_scenario
-    with tempfile.TemporaryDirectory() as tmp:
-        f = Path(tmp) / "scenario.yaml"
-        f.write_text(text)
-        try:
-            was = load_scenario(f)
-        except NbvsError:
-            return False
-    return settings_of(was) == settings_of(spec.resolve())
+    return was is not None and settings_key(was) == settings_key(spec.resolve())
 
 
 def _restore_records(batch: Batch, specs, records, folder: str) -> int:

@@ -6,6 +6,7 @@ decides every other state, so the verdicts are Drake's."""
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -58,37 +59,37 @@ class CollisionModel:
         return {"collision_checks": int(self.counter[0]) + self.drake_queries, "drake_queries": self.drake_queries,
                 "collision_check_s": self.check_s}
 
+    @contextlib.contextmanager
+    def timed(self):
+        """Adds the time spent inside to check_s (the bulk kernels' callers use it too)."""
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.check_s += time.perf_counter() - t
+
     def bulk_classify(self, q: np.ndarray) -> np.ndarray:
         """FREE / COLLIDING / UNKNOWN of states (N, 8) by the conservative model alone (needs
         the certificate)."""
-        t = time.perf_counter()
-        out = bulk.classify(np.ascontiguousarray(np.atleast_2d(q), float), *self.certificate.model, self.counter)
-        self.check_s += time.perf_counter() - t
-        return out
+        with self.timed():
+            return bulk.classify(np.ascontiguousarray(np.atleast_2d(q), float), *self.certificate.model, self.counter)
 
     def bulk_path(self, states: np.ndarray, max_step: float = 0.02) -> int:
         """FREE / COLLIDING / UNKNOWN of a path by the conservative model alone (bulk.path_verdict)."""
-        t = time.perf_counter()
-        out = bulk.path_verdict(np.ascontiguousarray(states, float), *self.certificate.model, max_step, bulk.STRIDE,
-                                self.counter)
-        self.check_s += time.perf_counter() - t
-        return int(out)
+        with self.timed():
+            return int(bulk.path_verdict(np.ascontiguousarray(states, float), *self.certificate.model, max_step,
+                                         bulk.STRIDE, self.counter))
 
     def bulk_edges(self, A: np.ndarray, B: np.ndarray, rc: np.ndarray, max_step: float = 0.02) -> np.ndarray:
         """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (bulk.edge_verdicts)."""
-        t = time.perf_counter()
-        out = bulk.edge_verdicts(np.ascontiguousarray(A, float), np.ascontiguousarray(B, float),
-                                 *self.certificate.model, rc, max_step, bulk.STRIDE, self.counter)
-        self.check_s += time.perf_counter() - t
-        return out
+        with self.timed():
+            return bulk.edge_verdicts(np.ascontiguousarray(A, float), np.ascontiguousarray(B, float),
+                                      *self.certificate.model, rc, max_step, bulk.STRIDE, self.counter)
 
     def free(self, q: np.ndarray, parallelize: bool = True) -> np.ndarray:
         """Boolean (N,) collision-free flags for states (N, 8)."""
-        t = time.perf_counter()
-        try:
+        with self.timed():
             return self._free(q, parallelize)
-        finally:
-            self.check_s += time.perf_counter() - t
 
     def _free(self, q: np.ndarray, parallelize: bool) -> np.ndarray:
         q = np.atleast_2d(np.asarray(q, float))

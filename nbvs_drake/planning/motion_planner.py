@@ -156,11 +156,9 @@ class MotionPlanner:
         line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
         the other); then RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
         rc, p = self.sc.robot, self.sc.planner
-        detours = (s for w in detour_waypoints(q0, q1, rc.xy_bounds) for s in steer_via(q0, q1, w, rc))
-        for kind, controls in itertools.chain(steer(q0, q1, rc), detours if p.detour_steering else ()):
-            states = rollout(q0, controls, rc.control_dt)
-            if self.path_free(states, obstacles):
-                return kind, controls, states
+        found = self._first_free(q0, itertools.chain(steer(q0, q1, rc), self._detours(q0, q1)), obstacles)
+        if found is not None:
+            return found
         if p.rrt_max_nodes > 0 and rng is not None:
             from .rrt import rrt_ext_ext
             res = rrt_ext_ext(q0, q1, self.sc.robot, np.asarray(p.weights), self.sampler.sample_states,
@@ -168,6 +166,23 @@ class MotionPlanner:
                               max_nodes=p.rrt_max_nodes, step=p.tree_step)
             if res.found:
                 return "rrt", res.controls, res.states
+        return None
+
+    def _detours(self, q0: np.ndarray, q1: np.ndarray):
+        """The detour sequences (`steer_via` through each of `detour_waypoints`) when
+        planner.detour_steering, else none."""
+        if not self.sc.planner.detour_steering:
+            return iter(())
+        rc = self.sc.robot
+        return (s for w in detour_waypoints(q0, q1, rc.xy_bounds) for s in steer_via(q0, q1, w, rc))
+
+    def _first_free(self, q0: np.ndarray, sequences, obstacles: ObstacleModel):
+        """The first of the (kind, controls) sequences from q0 whose path is free, as
+        (kind, controls, states), or None."""
+        for kind, controls in sequences:
+            states = rollout(q0, controls, self.sc.robot.control_dt)
+            if self.path_free(states, obstacles):
+                return kind, controls, states
         return None
 
     @property
@@ -202,9 +217,10 @@ class MotionPlanner:
         length = np.full(len(goals), np.inf)
         for i, g in enumerate(goals):  # the shortest free direct steering path
             options = [(kind, c, rollout(q0, c, rc.control_dt)) for kind, c in steer(q0, g, rc)]
-            for o in sorted(options, key=lambda o: path_length(o[2], p.weights)):
-                if self.path_free(o[2], obstacles):
-                    out[i], length[i] = o, path_length(o[2], p.weights)
+            lengths = [path_length(o[2], p.weights) for o in options]
+            for j in np.argsort(lengths, kind="stable"):
+                if self.path_free(options[j][2], obstacles):
+                    out[i], length[i] = options[j], lengths[j]
                     break
         # the roadmap for every goal whose turn-drive-turn with the arm moving alongside (the
         # shortest steering path) is blocked: its path around may be shorter than the others
@@ -220,13 +236,6 @@ class MotionPlanner:
                 if path_length(r[1], p.weights) < length[i] and self.path_free(r[1], obstacles):
                     out[i] = ("roadmap", r[0], r[1])
         for i in range(len(goals)):
-            if out[i] is None and p.detour_steering:
-                for w in detour_waypoints(q0, goals[i], rc.xy_bounds):
-                    for kind, controls in steer_via(q0, goals[i], w, rc):
-                        states = rollout(q0, controls, rc.control_dt)
-                        if self.path_free(states, obstacles):
-                            out[i] = (kind, controls, states)
-                            break
-                    if out[i] is not None:
-                        break
+            if out[i] is None:
+                out[i] = self._first_free(q0, self._detours(q0, goals[i]), obstacles)
         return out

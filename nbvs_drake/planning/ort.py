@@ -66,11 +66,11 @@ class ORTPlanner:
         relative); their controls are computed when a path needs them."""
         p, rc, kin = self.sc.planner, self.sc.robot, self.sampler.kin
         col = obstacles.collision
-        t = time.perf_counter()
-        near, aim, new, verdict, length = bulk.tree_extensions(
-            tree.q, tree.n, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc), kin.arm_lower,
-            kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE, col.counter)
-        col.check_s += time.perf_counter() - t
+        with col.timed():
+            near, aim, new, verdict, length = bulk.tree_extensions(
+                tree.q, tree.n, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
+                kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE,
+                col.counter)
         unknown = np.flatnonzero(verdict == UNKNOWN)
         if len(unknown):
             states = [rollout(tree.q[near[b]], steer_together(tree.q[near[b]], aim[b], rc), rc.control_dt)

@@ -187,7 +187,7 @@ class Roadmap:
             ok = path_free_py(states) if self.src[e] == start else collision.path_free(states)
             self.state[e] = FREE if ok else COLLIDING
 
-    def _search(self, s: int, goals: np.ndarray):
+    def _search(self, s: int):
         from scipy.sparse import csr_matrix
         from scipy.sparse.csgraph import dijkstra
         n = len(self.V)
@@ -207,7 +207,7 @@ class Roadmap:
         chains: dict[int, list[int]] = {}
         for _ in range(MAX_ROUNDS):
             st.rounds += 1
-            dist, pred = self._search(s, goals)
+            dist, pred = self._search(s)
             pending, chains = [], {}
             for g in goals:
                 if not np.isfinite(dist[g]):

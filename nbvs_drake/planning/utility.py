@@ -52,7 +52,6 @@ class ExpectedUtilityScore:
         self.overlap_h = overlap_h
         #: seconds spent checking rollouts for collision (reset by `select_best` per plan)
         self.checks_s = 0.0
-        self.stats = {"rollout_states": 0, "rollout_states_drake": 0}
         p = sc.planner
         need = sample_count_bound(p.eu_alpha, p.eu_gamma)
         if p.eu_samples < need:
@@ -106,8 +105,6 @@ class ExpectedUtilityScore:
                 todo[:, steps < skip] = False
                 ok[:, steps < skip] = True
             ok[todo] = obstacles.free(s[todo])
-            self.stats["rollout_states"] += ok.size
-            self.stats["rollout_states_drake"] += int(todo.sum())
             self.checks_s += time.perf_counter() - t
             return ok
 

@@ -9,6 +9,18 @@ from pathlib import Path
 from .errors import NbvsError
 
 
+def _only(specs: list[str]) -> dict:
+    """--only FACTOR=LABEL[,LABEL] options as {factor: [labels]}."""
+    from .experiments import ExperimentError
+    out = {}
+    for spec in specs:
+        f, sep, labels = spec.partition("=")
+        if not sep or not f or not labels:
+            raise ExperimentError(f"--only {spec!r}: expected FACTOR=LABEL[,LABEL], e.g. planner=nbvs")
+        out.setdefault(f.strip(), []).extend(x.strip() for x in labels.split(",") if x.strip())
+    return out
+
+
 def _cmd_reconstruct(args):
     from .api import reconstruct
     meshcat = None
@@ -60,6 +72,7 @@ def _cmd_experiment(args):
     command = shlex.join(["nbvs", "experiment", *args.names]
                          + (["--quick"] if args.quick else [])
                          + (["--seeds", *map(str, args.seeds)] if args.seeds else [])
+                         + [a for o in args.only for a in ("--only", o)]
                          + (["--jobs", str(args.jobs)] if args.jobs else []) + ["--executor", args.executor]
                          + (["--address", args.address] if args.address else []) + ["--out", out]
                          + (["--retry-failed"] if args.retry_failed else [])
@@ -72,7 +85,8 @@ def _cmd_experiment(args):
         for d in defs:
             failed += run_experiment(d, out, quick=args.quick, seeds=args.seeds, executor=ex,
                                      retry_failed=args.retry_failed, command=command,
-                                     table_only=args.table_only, records=args.records)["failed"]
+                                     table_only=args.table_only, records=args.records,
+                                     only=_only(args.only))["failed"]
     finally:
         ex.close()
     if failed:
@@ -123,6 +137,9 @@ def main(argv=None) -> int:
                    help="experiment name(s) (see --list) or definition YAML files; or `report`")
     e.add_argument("--list", action="store_true", help="list the experiments: paper, table/figure, runs, cost")
     e.add_argument("--seeds", nargs="+", type=int, default=None, help="replace the definition's seeds")
+    e.add_argument("--only", action="append", default=[], metavar="FACTOR=LABEL[,LABEL]",
+                   help="run only the runs of these levels of a factor (repeatable; the table covers "
+                        "every finished run), e.g. --only planner=nbvs --only approach=DU,EU-MU")
     e.add_argument("--quick", action="store_true", help="the definition's small version (minutes)")
     e.add_argument("--jobs", type=int, default=None, help="runs at a time (default: the number of cores)")
     e.add_argument("--executor", choices=["local", "ray"], default="local",

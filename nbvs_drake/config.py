@@ -35,16 +35,19 @@ class RobotConfig:
 class ObjectConfig:
     """The object: mesh -> `up` -> `rpy_deg` -> `yaw_deg`, scaled, then set on the table
     (lowest point on the table top, footprint centred at `xy`)."""
-    #: "teapot" (Newell's patches), "bunny" (the Stanford bunny, models/stanford_bunny.ply)
-    #: or "mesh" (the file `mesh`)
+    #: "teapot" (Newell's patches), "bunny" (the Stanford bunny, models/stanford_bunny.ply),
+    #: "dragon" (the Stanford dragon, models/stanford_dragon.ply) or "mesh" (the file `mesh`)
     kind: str = "teapot"
     mesh: str = ""  #: OBJ/PLY/STL path (relative to the scenario file) when kind = mesh
     #: longest side in metres of the mesh's own (unrotated) bounding box; 0: use `scale` as
-    #: is; -1: the kind's default (teapot 0.40, bunny 0.467 = the papers' scene bunny, mesh 0.40)
+    #: is; -1: the kind's default (teapot 0.40, bunny 0.467 and dragon 0.511 = the papers'
+    #: scene objects, mesh 0.40). A `kind` changed by a setting (`--set scene.object.kind=...`)
+    #: without a `size` (or `up`) setting takes the new kind's defaults (`load_scenario`)
     size: float = -1.0
     scale: float = 1.0  #: mesh units -> metres, used when size = 0
     xy: list[float] = dc.field(default_factory=lambda: [0.0, 0.0])  #: footprint centre on the table
-    #: the mesh's up axis: x, y, z, -x, -y or -z; "": the kind's (bunny y, teapot and mesh z).
+    #: the mesh's up axis: x, y, z, -x, -y or -z; "": the kind's (bunny and dragon y, teapot
+    #: and mesh z).
     #: The axes are turned cyclically (x -> y -> z -> x) until `up` is +z (y-up: the mesh's
     #: (x, y, z) become the world's (y, z, x)); a negative axis is then turned 180 deg about x
     up: str = ""
@@ -57,7 +60,7 @@ class ObjectConfig:
 
 #: per-kind defaults of ObjectConfig.size (when -1) and .up (when "")
 OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up="y"),
-                "mesh": dict(size=0.40, up="z")}
+                "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z")}
 OBJECT_UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 
 
@@ -206,6 +209,10 @@ class PlannerConfig:
     #: icp registers against the table too), so a rollout that drifts off the object is
     #: still registered and its scan still counts
     eu_rollout_registration: bool = True
+    #: when no candidate is feasible under the motion noise (or none has a path), views from
+    #: the current base by the arm alone (exact motion under Table 4's noise) before the run
+    #: stops with no_feasible_under_noise (planning/recovery.py)
+    noise_fallback: bool = False
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or
@@ -238,6 +245,16 @@ class MissionConfig:
     #: after a collision of the executed motion: "stop" the run (the papers' robot
     #: experiments) or "continue" (the collision is counted)
     on_collision: str = "stop"
+    #: verified views under motion noise (planning/recovery.py): when a plan that moved the
+    #: base ends, a localisation frame (not integrated, not a sensing scan) is registered
+    #: first; the scan is taken when the corrected camera is within view_tolerance_m and
+    #: view_tolerance_rad of the planned view, else the camera is re-aimed (correction) or,
+    #: when the frame cannot be registered, a re-localisation view is taken (recovery); after
+    #: max_recoveries such frames the next frame is the scan as it is
+    verify_views: bool = False
+    view_tolerance_m: float = 0.03
+    view_tolerance_rad: float = 0.05
+    max_recoveries: int = 3
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0
@@ -291,10 +308,27 @@ def load_scenario(path=None, *, seed=None, settings=()) -> "Scenario":
         scenario.base_dir = str(path.resolve().parent)
     if seed is not None:
         scenario.seed = int(seed)
+    kind = scenario.scene.object.kind
     for setting in settings:
         scenario = apply_setting(scenario, setting)
+    _kind_defaults(scenario, kind, settings)
     validate(scenario)
     return scenario
+
+
+def _kind_defaults(scenario: "Scenario", file_kind: str, settings) -> None:
+    """The rule for a kind changed by a setting: a scenario file's `size` and `up` belong to
+    its own kind (the default scenario's 0.40 m is the teapot's), so when the settings change
+    `scene.object.kind` and set no `size` (no `up`), the new kind's default size (up axis)
+    applies: `--set scene.object.kind=bunny` gives the papers' 0.467 m bunny."""
+    o = scenario.scene.object
+    if o.kind == file_kind:
+        return
+    keys = {s.partition("=")[0].replace(" ", "") for s in settings}
+    if "scene.object.size" not in keys and "scene.object.scale" not in keys:
+        o.size = -1.0
+    if "scene.object.up" not in keys:
+        o.up = ""
 
 
 def apply_setting(scenario: "Scenario", setting: str) -> "Scenario":
@@ -362,7 +396,7 @@ def validate(sc: Scenario) -> Scenario:
     _require(s.gt_points >= 100, f"scene.gt_points must be >= 100, got {s.gt_points}")
     o = s.object
     _require(o.kind in OBJECT_KINDS,
-             f"scene.object.kind must be 'teapot', 'bunny' or 'mesh', got {o.kind!r}")
+             f"scene.object.kind must be one of {', '.join(OBJECT_KINDS)}, got {o.kind!r}")
     _require(o.kind != "mesh" or o.mesh, "scene.object.kind is 'mesh' but scene.object.mesh is empty")
     _require(_finite(o.size) and (o.size >= 0 or o.size == -1),
              f"scene.object.size must be > 0, 0 (use scale) or -1 (the kind's default), got {o.size}")
@@ -459,6 +493,11 @@ def validate(sc: Scenario) -> Scenario:
     _require(mi.max_sim_time > 0, "mission.max_sim_time must be > 0")
     _require(mi.relocalization in ("icp", "none"),
              f"mission.relocalization must be 'icp' or 'none', got {mi.relocalization!r}")
+    _require(_finite(mi.view_tolerance_m, mi.view_tolerance_rad) and mi.view_tolerance_m > 0
+             and mi.view_tolerance_rad > 0,
+             f"mission.view_tolerance_m and view_tolerance_rad must be > 0, got {mi.view_tolerance_m}, "
+             f"{mi.view_tolerance_rad}")
+    _require(mi.max_recoveries >= 0, f"mission.max_recoveries must be >= 0, got {mi.max_recoveries}")
     _require(mi.on_collision in ("stop", "continue"),
              f"mission.on_collision must be 'stop' or 'continue', got {mi.on_collision!r}")
     _require(mi.stop_unknown_voxels >= 0, f"mission.stop_unknown_voxels must be >= 0, got {mi.stop_unknown_voxels}")

@@ -97,7 +97,11 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     belief_pose = builder.AddNamedSystem("believed_camera_pose", CameraPose(kin))
     loc = builder.AddNamedSystem("localisation", Localisation(sc, kin, q0, dt))
     mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
-    planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0))
+    recovery = None
+    if sc.mission.verify_views and hasattr(planner_impl, "motion") and hasattr(planner_impl, "obstacles"):
+        from .planning.recovery import Recovery
+        recovery = Recovery(sc, kin, planner_impl.motion, planner_impl.obstacles)
+    planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0, recovery))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
 
     builder.Connect(planner.GetOutputPort("controls"), ctrl.GetInputPort("controls"))

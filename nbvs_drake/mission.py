@@ -45,10 +45,25 @@ def pose_errors(records: list[dict]) -> dict:
         return {"scans": 0}
     b = np.array([state_error(r["true_state"], r["believed_state"]) for r in rows])
     c = np.array([state_error(r["true_state"], r["corrected_state"]) for r in rows])
-    return {"scans": len(rows),
-            "believed_m": round(float(b[:, 0].mean()), 5), "believed_rad": round(float(b[:, 1].mean()), 5),
-            "corrected_m": round(float(c[:, 0].mean()), 5), "corrected_rad": round(float(c[:, 1].mean()), 5),
-            "icp_applied": int(sum(1 for r in rows if (r["scan"].get("icp") or {}).get("applied")))}
+    out = {"scans": len(rows),
+           "believed_m": round(float(b[:, 0].mean()), 5), "believed_rad": round(float(b[:, 1].mean()), 5),
+           "corrected_m": round(float(c[:, 0].mean()), 5), "corrected_rad": round(float(c[:, 1].mean()), 5),
+           "icp_applied": int(sum(1 for r in rows if (r["scan"].get("icp") or {}).get("applied")))}
+    # the corrected belief's error after the run's last registration (its last scan whose ICP applied)
+    reg = [i for i, r in enumerate(rows) if (r["scan"].get("icp") or {}).get("applied")]
+    if reg:
+        out["last_registered_m"] = round(float(c[reg[-1], 0]), 5)
+        out["last_registered_rad"] = round(float(c[reg[-1], 1]), 5)
+    return out
+
+
+def recovery_counts(records: list[dict]) -> dict:
+    """mission.verify_views: localisation frames taken before the sensing scans, and of them
+    those answered by a correction (`corrections`) and by a re-localisation view (`recoveries`)."""
+    frames = [f for r in records for f in r["scan"].get("frames") or []]
+    return {"localisation_frames": len(frames),
+            "corrections": sum(1 for f in frames if f.get("check") == "correct"),
+            "recoveries": sum(1 for f in frames if f.get("check") == "relocalise")}
 
 
 def prediction_summary(records: list[dict]) -> dict:
@@ -156,6 +171,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "object_points": int(len(omap.object_points)),
         "relocalization": sc.mission.relocalization,
         "pose_error": pose_errors(records),
+        **(recovery_counts(records) if sc.mission.verify_views else {}),
         **prediction_summary(records),
         "sim_time_s": round(ctx.get_time(), 3),
         "times_s": {

@@ -21,11 +21,16 @@ def wrap_angle(a):
 @dc.dataclass(frozen=True)
 class ControlSequence:
     """tau = {u_1..u_m}: each row [v, w_b, w_1..w_5] is held for dt. plan_id identifies the
-    plan (0 = no motion, the initial state). `states` are the m+1 planned states."""
+    plan (0 = no motion, the initial state). `states` are the m+1 planned states. `purpose`:
+    "view" (to a planned view), "correct" (an exact re-aim back to it) or "relocalise" (a
+    re-localisation view), and `target`, the state whose view a verified view checks the frame
+    at the plan's end against (mission.verify_views; planning/recovery.py)."""
     plan_id: int
     dt: float
     controls: np.ndarray
     states: np.ndarray
+    purpose: str = "view"
+    target: np.ndarray | None = None
 
     def __deepcopy__(self, memo):  # immutable value
         return self

@@ -1,5 +1,5 @@
 """The object to reconstruct: Newell's Utah teapot (tessellated from its 32 bicubic Bezier
-patches), the Stanford bunny or any OBJ/PLY/STL mesh, oriented and placed on the table;
+patches), the Stanford bunny, the Stanford dragon or any OBJ/PLY/STL mesh, oriented and placed on the table;
 ground-truth surface samples."""
 
 from __future__ import annotations
@@ -111,6 +111,17 @@ def load_bunny() -> ObjectMesh:
     return load_mesh_file(model_path(BUNNY_FILE))
 
 
+#: the Stanford dragon, low-poly (7,961 vertices, 15,922 triangles, y up, extents about
+#: 143 x 97 x 63 in its units), converted from ../shared/objects/stanford_dragon.obj
+#: (cgsdev0/teapot models/dragon.obj) to binary PLY, vertices and faces in the source's order
+DRAGON_FILE = "stanford_dragon.ply"
+
+
+def load_dragon() -> ObjectMesh:
+    """The Stanford dragon in its file's frame and units (y up, facing +x)."""
+    return load_mesh_file(model_path(DRAGON_FILE))
+
+
 # --------------------------------------------------------------------------------------
 # Meshes from files
 # --------------------------------------------------------------------------------------
@@ -190,6 +201,8 @@ def build_object(sc: Scenario) -> ObjectMesh:
         mesh = tessellate_teapot(o.tessellation)
     elif o.kind == "bunny":
         mesh = load_bunny()
+    elif o.kind == "dragon":
+        mesh = load_dragon()
     else:
         p = Path(o.mesh)
         if not p.is_absolute():

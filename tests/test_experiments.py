@@ -84,9 +84,11 @@ def test_definition_expands_to_its_runs(name):
 
 def test_full_sizes_follow_the_papers():
     size = {n: len(expand(resolve(load_definition(n)))) for n in NAMES}
-    assert size["motion_noise"] == 2 * 3 * 10  # Table 5: two objects here, three approaches, ten runs
+    # Table 5: three objects, three approaches, ten runs; with the paper's settings and this project's planner
+    assert size["motion_noise"] == 3 * 3 * 10 * 2
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
-    assert size["clutter"] == 2 * 2 * 5  # Table 6: five repetitions, with both motion planners
+    # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["hrt"] % 4 == 0  # a = 0..3
 
@@ -222,7 +224,8 @@ def test_local_and_ray_executors_give_the_same_tables(tmp_path):
             assert (tmp_path / "ray" / name / "logs" / f"{rid}.log").read_text().count("scan ") >= 1
         assert "coverage" in local.stdout and "run" in local.stderr  # per-run lines, the progress bar
     mn = load_table(tmp_path / "local" / "motion_noise_quick")
-    assert {c["label"] for c in mn.cells} == {"teapot/DU", "teapot/DU-MU", "teapot/EU-MU"}
+    assert {c["label"] for c in mn.cells} == {f"teapot/{a}/{p}" for a in ("DU", "DU-MU", "EU-MU")
+                                              for p in ("paper", "nbvs")}
     assert all(c["metrics"]["coverage"]["mean"] > 20 for c in mn.cells)
     dest = tmp_path / "docs" / "results.md"
     assert main(["experiment", "report", "--out", str(tmp_path / "local"), "--to", str(dest)]) == 0
@@ -442,3 +445,16 @@ def test_run_records_continue_a_study_in_another_output_folder(tmp_path):
     fifth = _cli(str(other), "--seeds", "2", "--jobs", "1", "--out", str(tmp_path / "d"), "--records", str(rec_root),
                  "--table-only")
     assert fifth.returncode == 0 and "restored" not in fifth.stdout, fifth.stdout + fifth.stderr
+
+
+def test_a_level_may_run_its_own_seeds():
+    d = load_definition("clutter")
+    runs = expand(resolve(d))
+    seeds = {}
+    for r in runs:
+        seeds.setdefault(r.levels["planner"], set()).add(r.seed)
+    assert seeds["RRT Ext-Ext"] == seeds["roadmap"] == set(range(1, 6))
+    assert seeds["nbvs"] == set(range(1, 11))
+    # the quick section's seeds (and the caller's) serve every level
+    assert {r.seed for r in expand(resolve(d, quick=True))} == set(d["quick"]["seeds"])
+    assert {r.seed for r in expand(resolve(d, seeds=[7]))} == {7}

@@ -297,6 +297,7 @@ def build_table(r: dict, exp_dir: Path, stamp: dict | None = None) -> dict:
                 if (exp_dir / "runs" / f"{sp.run_id}.failed.json").is_file():
                     failed.append(sp.seed)
         cell = {"label": label, "levels": levels, "expected": len(by_cell.get(label, [])),
+                "seeds": [sp.seed for sp in by_cell.get(label, [])],
                 "finished": len(finished), "missing_seeds": missing, "failed_seeds": failed,
                 "runs": [sp.run_id for sp in by_cell.get(label, [])],
                 "x": next((lv.get("x") for lv in combo.values() if lv.get("x") is not None), None),
@@ -483,7 +484,7 @@ def markdown(r: dict, table: dict, figures: list[str]) -> str:
           " | ".join(m["name"] for m in r.get("metrics") or []) + " | stop reason |",
           "|" + " --- |" * (3 + len(r.get("metrics") or []))]
     for c in rows:
-        for s in table["seeds"]:
+        for s in c.get("seeds", table["seeds"]):
             vals = [_fmt(c["metrics"][m["name"]]["values"].get(str(s)), int(m.get("digits", digits)))
                     for m in r.get("metrics") or []]
             stop = c["stop_reasons"].get(str(s))

@@ -17,6 +17,7 @@ A definition (all keys but `name`, `factors` and `seeds` optional)::
       - name: approach
         levels:
           - {label: DU-MU, scenario: teapot_du_mu, x: 1}   # x: position in a `versus` figure
+          - {label: EU-MU, scenario: teapot_eu_mu, seeds: [1, 2, 3, 4, 5]}  # its own seeds
     seeds: [1, 2, 3]
     metrics:   # per-run values (summary.json keys, derived keys; see aggregate.py)
       - {name: coverage, key: coverage, scale: 100, unit: "%", stats: [mean, std, max]}
@@ -164,6 +165,9 @@ def check_definition(d: dict) -> dict:
         need(all(labels) and len(set(labels)) == len(labels), f"factor {f['name']}: levels need distinct labels")
         for lv in f["levels"]:
             need(isinstance(lv.get("set", []), list), f"factor {f['name']} level {lv['label']}: set must be a list")
+            ls = lv.get("seeds")
+            need(ls is None or (isinstance(ls, list) and ls and all(isinstance(x, int) for x in ls)),
+                 f"factor {f['name']} level {lv['label']}: seeds must be a non-empty list of integers")
     seeds = d.get("seeds")
     need(isinstance(seeds, list) and seeds and all(isinstance(s, int) for s in seeds),
          "seeds must be a list of integers")
@@ -234,6 +238,10 @@ def resolve(d: dict, quick: bool = False, seeds=None) -> dict:
                 f["levels"] = [lv for lv in f["levels"] if str(lv["label"]) in keep]
     if seeds:
         r["seeds"] = [int(s) for s in seeds]
+    if quick or seeds:  # the quick section's or the caller's seeds serve every level
+        for f in r.get("factors") or []:
+            for lv in f["levels"]:
+                lv.pop("seeds", None)
     return r
 
 
@@ -268,7 +276,9 @@ def expand(r: dict) -> list[RunSpec]:
         overrides += list(r.get("extra_set") or [])
         if not scenario:
             raise ExperimentError(f"experiment {r['name']}: no scenario for {cell_label(_labels(combo))}")
-        for seed in r["seeds"]:
+        # a level may run its own seeds (`seeds:` in the level; the first such level's count)
+        level_seeds = next((lv["seeds"] for lv in combo.values() if lv.get("seeds")), None)
+        for seed in level_seeds or r["seeds"]:
             runs.append(RunSpec(f"{cell_id(_labels(combo))}_s{seed}", _labels(combo), str(scenario), int(seed),
                                 overrides))
     ids = [x.run_id for x in runs]

@@ -458,19 +458,22 @@ def scenario_drift(spec: RunSpec, run_dir: Path) -> list[str]:
 
 def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, jobs: int | None = None,
                    executor="local", address: str | None = None, retry_failed: bool = False,
-                   command: str = "", progress: bool = True, table_only: bool = False, records=None) -> dict:
+                   command: str = "", progress: bool = True, table_only: bool = False, records=None,
+                   only: dict | None = None) -> dict:
     """Runs what is missing of one experiment into out_root/<name>[_quick]/ and writes its
     table (`table_only`: runs nothing, the table of the runs finished so far, e.g. of a batch
     that was stopped). `executor`: "local", "ray" or an executor from `make_executor` (left open, for
     several experiments on one Ray session). `records`: a run records' folder (`records.py`):
     the runs recorded in records/<name>[_quick]/ that the output folder lacks are restored
-    first, and every finished run is recorded there. Returns {"table", "dir", "ran",
+    first, and every finished run is recorded there. `only` {factor: [level labels]}: run only
+    the runs of those levels (the table still covers every run finished). Returns {"table", "dir", "ran",
     "skipped", "restored", "failed" (the run ids that failed, now or before)}."""
     if isinstance(executor, str):
         ex = make_executor(executor, jobs, address)
         try:
             return run_experiment(defn, out_root, quick=quick, seeds=seeds, executor=ex, retry_failed=retry_failed,
-                                  command=command, progress=progress, table_only=table_only, records=records)
+                                  command=command, progress=progress, table_only=table_only, records=records,
+                                  only=only)
         finally:
             ex.close()
     from .aggregate import write_table
@@ -511,6 +514,15 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             todo.append(spec)
     if table_only:
         todo = []
+    if only:
+        factors = {f["name"]: {str(lv["label"]) for lv in f["levels"]} for f in r.get("factors") or []}
+        for fname, labels in only.items():
+            unknown = set(labels) - factors.get(fname, set())
+            if fname not in factors or unknown:
+                raise ExperimentError(f"--only {fname}={','.join(labels)}: {r['name']} has no "
+                                      + (f"factor {fname!r}" if fname not in factors else
+                                         f"level {', '.join(sorted(unknown))} of {fname}"))
+        todo = [sp for sp in todo if all(sp.levels.get(f) in labels for f, labels in only.items())]
     import yaml
     (exp_dir / "definition.yaml").write_text(yaml.safe_dump({k: v for k, v in r.items() if not k.startswith("_")},
                                                             sort_keys=False, allow_unicode=True))

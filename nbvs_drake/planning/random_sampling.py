@@ -38,12 +38,26 @@ class RandomSamplingPlanner:
         self.overlap_h = overlap_h
 
     def plan(self, request: PlanRequest) -> PlanResult:
+        res = self._plan(request, self.generator)
+        if res.status in ("no_feasible", "no_path") and self.sc.planner.noise_fallback:
+            # planner.noise_fallback: views from where the robot is, by the arm alone (its
+            # motion is exact under Table 4's noise), before the run gives up
+            fb = self._plan(request, _ArmOnly(self.sc, self.evaluator.kin, request.q_start))
+            fb.stages = dict(res.stages, fallback=fb.stages)
+            fb.times = {k: res.times.get(k, 0.0) + fb.times.get(k, 0.0) for k in set(res.times) | set(fb.times)}
+            fb.factors = dict(fb.factors, fallback="arm_only")
+            if fb.status != "ok":
+                fb.status = res.status
+            return fb
+        return res
+
+    def _plan(self, request: PlanRequest, generator) -> PlanResult:
         p = self.sc.planner
         omap, rng = request.omap, request.rng
         times, stages = {}, {}
         obstacles: ObstacleModel = self.obstacles.for_map(omap)
         stages.update(obstacles.stats)
-        cand = free_candidates(self.generator, obstacles, rng, omap, stages, times)
+        cand = free_candidates(generator, obstacles, rng, omap, stages, times)
 
         t = time.perf_counter()
         met = self.evaluator.evaluate(omap, cand)
@@ -91,3 +105,20 @@ class RandomSamplingPlanner:
             return PlanResult("no_feasible" if stages["with_path"] else "no_path", stages=stages, times=times)
         best.stages, best.times = stages, times
         return best
+
+
+class _ArmOnly:
+    """planner.noise_fallback's candidates: the current base with arm configurations uniform
+    within the joint limits whose director ray meets W_box (planner.n_candidates of them at
+    most, from 4 x as many draws)."""
+
+    def __init__(self, sc: Scenario, kin, q_now: np.ndarray):
+        from .candidates import StateSampler
+        self.sampler = StateSampler(sc, kin)
+        self.q_now = np.asarray(q_now, float)
+
+    def generate(self, rng: np.random.Generator, omap=None) -> tuple[np.ndarray, int]:
+        from .recovery import arm_only_candidates
+        n = self.sampler.sc.planner.n_candidates
+        q = arm_only_candidates(self.sampler.kin, self.q_now, 4 * n, rng)
+        return q[self.sampler.looks_at_wbox(q)][:n], 4 * n

@@ -111,11 +111,34 @@ class ExpectedUtilityScore:
         def free(s):  # rows: rollouts x states 1..m
             return block_free(np.asarray(s, float).reshape(-1, m, 8), np.arange(1, m + 1)).reshape(-1)
         omap = request.omap
+        if self.sc.mission.verify_views:
+            final_utility = self._verified_utility(request, cand)
+        else:
+            def final_utility(s):
+                return self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration)
         return expected_utility(
             request.q_start, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, request.rng,
-            free, lambda s: self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration),
+            free, final_utility,
             weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=request.start_cov,
             block_free=block_free if self.motion.bulk_checks else None)
+
+    def _verified_utility(self, request: PlanRequest, cand: PlanResult):
+        """The utility of a rollout's final state when views are verified (mission.verify_views,
+        planning/recovery.py): the robot re-aims at the planned view before it scans, so the
+        scan's information is the candidate's own g; what the drift risks is the localisation
+        frame that finds the error. A rollout counts with g times the share of the planned
+        view's registration landmarks (the object seen so far, the known environment) that
+        stay in its field of view (at most 1): a drift that loses them costs a re-localisation."""
+        from .recovery import landmarks_in_view, registration_landmarks
+        key = request.omap.scan_count
+        if getattr(self, "_marks_key", None) != key:
+            self._marks = registration_landmarks(self.sc, request.omap.object_points,
+                                                 np.random.default_rng([self.sc.seed, 19, key]))
+            self._marks_key = key
+        kin = self.evaluator.kin
+        nominal = max(float(landmarks_in_view(kin, self.sc, cand.states[-1:], self._marks)[0]), 1e-9)
+        g = cand.utility
+        return lambda s: g * np.minimum(1.0, landmarks_in_view(kin, self.sc, s, self._marks) / nominal)
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
               un_total: int) -> tuple[list[PlanResult], int]:

@@ -36,12 +36,14 @@ class _Memory:
     last scan."""
 
     def __init__(self, belief: Belief, predicted_plan: int, scanned_plan: int, model: RegistrationModel,
-                 last_scan: RegisteredScan):
+                 last_scan: RegisteredScan, frames: tuple = ()):
         self.belief = belief
         self.predicted_plan = predicted_plan
         self.scanned_plan = scanned_plan
         self.model = model
         self.last_scan = last_scan
+        #: the localisation frames since the last sensing scan (their reports)
+        self.frames = frames
 
     def __deepcopy__(self, memo):
         return self
@@ -71,6 +73,15 @@ class Localisation(LeafSystem):
     next registration's prior and to the planner (the covariance), and with
     mission.skip_unregistered_scans the scan is handed on marked not to be integrated. With
     exact odometry (no noise) nothing is registered.
+
+    With mission.verify_views (planning/recovery.py) the frame at the end of a plan that moved
+    the base is first a localisation frame: it is the sensing scan only when it registers and
+    the corrected camera is within the tolerances of the plan's target view; otherwise the
+    belief is corrected (or keeps its spread), `Belief.check` asks the planner for a
+    correction or a re-localisation view, and the frame is neither integrated nor counted (its
+    report goes with the next sensing scan's, `frames`). A plan with purpose "correct" (the
+    arm alone, exact) ends in the sensing scan, and so does the frame after
+    mission.max_recoveries localisation frames.
 
     Input ports:
       - point_cloud (abstract PointCloud): the depth camera's cloud, world frame at the
@@ -140,10 +151,11 @@ class Localisation(LeafSystem):
         corr = Correction()
         integrate = True
         pending = mem.belief.covariance
+        tau: ControlSequence = self._tau.Eval(context)
+        check = ""
         if self.sc.mission.relocalization == "icp" and mem.belief.scan > 0:
-            tau: ControlSequence = self._tau.Eval(context)
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
-                                           np.random.default_rng([self.sc.seed, 13, k]))
+                                           np.random.default_rng([self.sc.seed, 13, k, len(mem.frames)]))
             if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 omap: OccupancyMap = self._map.Eval(context)
                 icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,
@@ -157,16 +169,41 @@ class Localisation(LeafSystem):
                 else:
                     pending = prior
                     integrate = not self.sc.mission.skip_unregistered_scans
+                check = self._verify(tau, icp, corr.apply_state(mem.belief.state), len(mem.frames))
         t_register = time.perf_counter() - t1
         model = mem.model
-        if integrate:
+        if integrate and (not check or icp.applied):
             model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
-        scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, dict(
-            plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
-            icp=icp.to_json() if icp is not None else None))
         dead = mem.belief.state
-        belief = Belief(k, dead, corr.apply_state(dead), pending)
-        return scan, belief, model
+        frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
+                     icp=icp.to_json() if icp is not None else None)
+        if check:  # a localisation frame: the belief moves on, the map and the scan count do not
+            frame["check"] = check
+            belief = Belief(mem.belief.scan, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, check)
+            scan = RegisteredScan(mem.belief.scan, X_WC[:3, 3], pts[:0], free_rays[:0], False, {})
+            return scan, belief, model, mem.frames + (frame,)
+        info = dict(plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
+                    icp=frame["icp"])
+        if self.sc.mission.verify_views:
+            info["frames"] = list(mem.frames)
+        scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info)
+        belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
+        return scan, belief, model, ()
+
+    def _verify(self, tau: ControlSequence, icp, corrected: np.ndarray, n_frames: int) -> str:
+        """What a frame at the end of plan tau asks for under mission.verify_views: "" (it is
+        the sensing scan), "relocalise" (not registered) or "correct" (registered, but the
+        corrected camera is off tau's target view)."""
+        mi = self.sc.mission
+        if not mi.verify_views or tau.purpose == "correct" or n_frames >= mi.max_recoveries or tau.target is None:
+            return ""
+        if icp is None or not icp.applied:
+            return "relocalise"
+        if tau.purpose == "relocalise":
+            return "correct"
+        from ..planning.recovery import camera_error
+        d, a = camera_error(self._kin, corrected, tau.target)
+        return "correct" if d > mi.view_tolerance_m or a > mi.view_tolerance_rad else ""
 
     def _calc_outcome(self, context, value):
         """The due scan's registration and the memory after it (None: no scan due), cached:
@@ -176,8 +213,9 @@ class Localisation(LeafSystem):
         if status is None:
             value.set_value(_Outcome(mem.last_scan, None))
             return
-        scan, belief, model = self._register(context, mem, status)
-        value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, model, scan)))
+        scan, belief, model, frames = self._register(context, mem, status)
+        value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, model,
+                                               scan if not belief.check else mem.last_scan, frames)))
 
     def _calc_scan(self, context, output):
         output.set_value(self._outcome.Eval(context).scan)
@@ -191,8 +229,8 @@ class Localisation(LeafSystem):
                 return
             # a new plan: the belief is its predicted end state until the next scan corrects it
             b = mem.belief
-            new = _Memory(Belief(b.scan, b.dead_reckoned, tau.states[-1], b.covariance), tau.plan_id,
-                          mem.scanned_plan, mem.model, mem.last_scan)
+            new = _Memory(Belief(b.scan, b.dead_reckoned, tau.states[-1], b.covariance, b.frame, ""), tau.plan_id,
+                          mem.scanned_plan, mem.model, mem.last_scan, mem.frames)
         state.get_mutable_abstract_state(self._mem).set_value(new)
 
     def _calc_belief(self, context, output):

@@ -48,11 +48,16 @@ class Belief(_Immutable):
     """Where the robot believes it is after scan `scan` (0: before any scan): `dead_reckoned`,
     the state the executed plans predict; `state`, the same corrected by the scan's
     registration; `covariance` (3, 3), the planar pose error (dx, dy, dyaw) that no
-    registration has removed yet (zero after a registered scan)."""
+    registration has removed yet (zero after a registered scan). With mission.verify_views,
+    `frame` counts every frame registered (sensing scans and localisation frames) and `check`
+    says what the last one asks for when it was a localisation frame: "correct" (registered,
+    but the camera is off the planned view) or "relocalise" (not registered); "" otherwise."""
     scan: int
     dead_reckoned: np.ndarray
     state: np.ndarray
     covariance: np.ndarray
+    frame: int = 0
+    check: str = ""
 
     @staticmethod
     def exact(q) -> "Belief":

@@ -19,10 +19,14 @@ from .messages import Belief, PlanReport, rounded_state
 class PlannerMemory:
     """Immutable planner state: the last plan, the scan it answered, the last report."""
 
-    def __init__(self, controls: ControlSequence, planned_for_scan: int = 0, report: PlanReport | None = None):
+    def __init__(self, controls: ControlSequence, planned_for_scan: int = 0, report: PlanReport | None = None,
+                 answered_frame: int = 0, target: np.ndarray | None = None):
         self.controls = controls
         self.planned_for_scan = planned_for_scan
         self.report = report or PlanReport()
+        #: the belief's last frame answered (mission.verify_views) and the view being verified
+        self.answered_frame = answered_frame
+        self.target = target
 
     def __deepcopy__(self, memo):
         return self
@@ -45,6 +49,12 @@ class NBVSPlanner(LeafSystem):
     mission.stop_min_surface (surface_below_threshold) or its utility below
     mission.stop_min_utility (score_below_threshold).
 
+    With mission.verify_views and a `recovery` (planning/recovery.py), a localisation frame
+    that asks for a correction (`Belief.check`) is answered by a plan back to the view being
+    verified, and one that asks for re-localisation by a re-localisation view; neither
+    counts as a plan of the scan budget (the report keeps its scan), and a frame that cannot
+    be answered leaves the next frame to be the scan.
+
     Input ports:
       - map (abstract OccupancyMap).
       - belief (abstract Belief): the Localisation's belief (state and planar covariance);
@@ -57,10 +67,11 @@ class NBVSPlanner(LeafSystem):
     State: abstract PlannerMemory.
     """
 
-    def __init__(self, sc: Scenario, planner: Planner, q0):
+    def __init__(self, sc: Scenario, planner: Planner, q0, recovery=None):
         super().__init__()
         self.sc = sc
         self.planner = planner
+        self.recovery = recovery
         dt = sc.robot.control_dt
         mem = PlannerMemory(ControlSequence.empty(q0, dt))
         self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
@@ -83,6 +94,9 @@ class NBVSPlanner(LeafSystem):
         omap: OccupancyMap = self._map.Eval(context)
         k = omap.scan_count
         if k <= mem.planned_for_scan:
+            belief: Belief = self._belief.Eval(context)
+            if belief.check and belief.frame > mem.answered_frame and self.recovery is not None:
+                state.get_mutable_abstract_state(self._mem).set_value(self._recover(mem, omap, belief))
             return
         belief: Belief = self._belief.Eval(context)
         base = PlanReport(scan=k, believed_state=rounded_state(belief.dead_reckoned),
@@ -110,9 +124,32 @@ class NBVSPlanner(LeafSystem):
             elif mi.stop_min_utility and res.utility < mi.stop_min_utility:
                 new = PlannerMemory(mem.controls, k, dc.replace(rep, stop_reason="score_below_threshold"))
             else:
-                tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states)
-                new = PlannerMemory(tau, k, dc.replace(rep, plan_id=tau.plan_id, motion_sim_s=tau.m * tau.dt))
+                tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states,
+                                      "view", res.states[-1])
+                new = PlannerMemory(tau, k, dc.replace(rep, plan_id=tau.plan_id, motion_sim_s=tau.m * tau.dt),
+                                    belief.frame, res.states[-1])
         state.get_mutable_abstract_state(self._mem).set_value(new)
+
+    def _recover(self, mem: PlannerMemory, omap: OccupancyMap, belief: Belief) -> PlannerMemory:
+        """The answer to a localisation frame: a correction back to the view being verified or
+        a re-localisation view (`Recovery`), emitted as the next plan with the same target;
+        without a path, the last plan stays (its frame is re-taken as the scan: the controller
+        is idle, so the Localisation takes the next plan's end; here none comes, so the view is
+        given up and the frame count reaches max_recoveries)."""
+        rng = np.random.default_rng([self.sc.seed, 17, belief.frame])
+        if belief.check == "relocalise":
+            res = self.recovery.relocalise(omap, belief.state, belief.covariance, rng)
+        else:
+            res = self.recovery.correct(omap, belief.state, mem.target)
+        if res.status != "ok":
+            # nothing to execute: an empty plan ends at once where the robot is, and its frame
+            # is taken again (counted towards mission.max_recoveries)
+            res.controls, res.states = np.zeros((0, 7)), np.asarray(belief.state, float)[None]
+            res.factors = {"purpose": "stay"}
+        purpose = res.factors.get("purpose", "view")
+        tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states,
+                              "relocalise" if purpose == "stay" else purpose, mem.target)
+        return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target)
 
     def _calc_controls(self, context, output):
         output.set_value(self._mem_of(context).controls)

@@ -80,6 +80,12 @@ def _prepare_output(out: Path, overwrite: bool):
     """Refuses a folder holding a finished run unless `overwrite`; otherwise removes the
     outputs of an earlier run there (summary.json first, so that a run stopped halfway never
     leaves an old summary beside new records). Other files in the folder are left alone."""
+    if out.exists() and not out.is_dir():
+        raise RunExistsError(f"output folder {out} is a file, not a folder; choose another --out")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RunExistsError(f"cannot create the output folder {out}: {e.strerror}") from None
     if (out / OUTPUTS["summary"]).exists() and not overwrite:
         raise RunExistsError(f"{out} holds a finished run ({OUTPUTS['summary']}); "
                              "pass --overwrite (overwrite=True) to replace it, or choose another output folder")
@@ -116,5 +122,10 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     out = Path(out) if out is not None else Path("results") / sc.name
     _prepare_output(out, overwrite)
     from .mission import run_mission
-    run_mission(sc, out, verbose=verbose, meshcat=meshcat)
+    try:
+        run_mission(sc, out, verbose=verbose, meshcat=meshcat)
+    except KeyboardInterrupt:
+        from .errors import Interrupted
+        raise Interrupted(f"interrupted: the finished iterations are in {out / 'iterations.jsonl'} "
+                          f"(the scenario in {out / 'scenario.yaml'}; no summary.json)") from None
     return RunResult.load(out)

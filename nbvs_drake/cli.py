@@ -165,8 +165,8 @@ def main(argv=None) -> int:
     except NbvsError as e:
         print(f"nbvs: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("nbvs: interrupted (finished iterations are in iterations.jsonl)", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        print(f"nbvs: {e}" if str(e) else "nbvs: interrupted", file=sys.stderr)
         return 130
     return 0
 

@@ -15,3 +15,7 @@ class MeshError(NbvsError):
 
 class RunExistsError(NbvsError):
     """The output folder holds a finished run (its summary.json) and overwriting was not asked for."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C during a run or a batch, with a line that says where what was finished is."""

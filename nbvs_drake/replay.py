@@ -10,7 +10,9 @@ cyan to magenta, optical axes as short segments), the chosen view (red sphere an
 the planned path (red: base on the floor and camera). The executed base paths stay drawn as
 a green trail. A run stopped by a collision ends with the robot moving along the colliding
 trajectory's executed part (a dark red trail) to the pose where it collided, marked by a red
-cross on the floor. Every overlay is a Meshcat object whose "visible" property is switched in the
+cross on the floor. With verified views (mission.verify_views), a scan taken after
+localisation frames gets a vertical mark per frame over the robot: orange for a corrected
+view, magenta for a re-localisation (planning/recovery.py). Every overlay is a Meshcat object whose "visible" property is switched in the
 recording. Motions are replayed `speedup` times faster than simulated (at most
 `max_motion_s` each); the robot waits while a map and a plan are shown.
 
@@ -31,7 +33,9 @@ from .files import write_atomic
 from .mapping.occupancy import OccupancyMap
 from .meshcat_draw import (
     COLLISION_RGBA,
+    CORRECT_RGBA,
     PLAN_RGBA,
+    RELOCALISE_RGBA,
     ROOT,
     TRAIL_RGBA,
     rgba,
@@ -145,6 +149,24 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
                             3.0, rgba(TRAIL_RGBA))
             toggled.append(f"{ROOT}/trail/{i + 1}")
 
+    # verified views (mission.verify_views): a vertical mark over the base where scan k was
+    # taken after localisation frames, orange when its view was corrected, magenta when the
+    # belief had to be re-localised first (one segment per frame, stacked)
+    n_marked = 0
+    for i, rec in enumerate(records):
+        frames = (rec.get("scan") or {}).get("frames") or []
+        if not frames or not rec.get("true_state"):
+            continue
+        q = states_array([rec["true_state"]])[0]
+        for j, f in enumerate(frames):
+            z0 = 1.25 + 0.12 * j
+            relocalised = f.get("check") == "relocalise"
+            meshcat.SetLineSegments(f"{ROOT}/frames/{i + 1}/{j}", np.array([[q[0], q[1], z0]]).T.copy(),
+                                    np.array([[q[0], q[1], z0 + 0.09]]).T.copy(), 8.0,
+                                    rgba(RELOCALISE_RGBA if relocalised else CORRECT_RGBA))
+        toggled.append(f"{ROOT}/frames/{i + 1}")
+        n_marked += len(frames)
+
     hit = states_array((collision or {}).get("executed_path"))
     q_hit = states_array([collision["true_state"]])[0] if (collision or {}).get("true_state") else None
     show_hit = len(hit) >= 2 or q_hit is not None
@@ -196,6 +218,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
         show(f"{ROOT}/map/{k - 1}", t, False)
         show(f"{ROOT}/plan/{k - 1}", t, False)
         show(f"{ROOT}/trail/{k}", t, True)
+        show(f"{ROOT}/frames/{k}", t, True)
         t += hold_s
         show(f"{ROOT}/plan/{k}", t, True)
         t += plan_hold_s
@@ -236,6 +259,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     info = {"bytes": out_path.stat().st_size, "duration_s": round(t, 2), "robot_frames": n_frames,
             "maps": len(n_voxels), "unknown_points": int(sum(u for u, _ in n_voxels)),
             "occupied_points": int(sum(o for _, o in n_voxels)), "collision_shown": show_hit,
+            "localisation_frames_shown": n_marked,
             "seconds": time.perf_counter() - t0}
     tmpdir.cleanup()
     if own:

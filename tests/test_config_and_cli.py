@@ -137,3 +137,16 @@ def test_teapot_tessellation():
     lo, hi = m.bounds
     np.testing.assert_allclose(hi[2] - lo[2], 3.15, atol=1e-9)  # Newell's height
     assert len(m.triangles) > 32 * 8 * 8 * 1.5
+
+
+def test_paths_users_take_end_in_one_line(tmp_path, capsys):
+    """--out naming an existing file, a --records folder that cannot be written."""
+    f = tmp_path / "afile"
+    f.write_text("x")
+    assert main(["reconstruct", "--out", str(f), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"nbvs: error: output folder {f} is a file, not a folder; choose another --out"
+    assert f.read_text() == "x"
+    assert main(["experiment", "objects", "--quick", "--records", str(f), "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"nbvs: error: the records folder {f}/objects_quick cannot be written")

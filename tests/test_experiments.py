@@ -14,6 +14,7 @@ import pytest
 
 from nbvs_drake.cli import main
 from nbvs_drake.experiments import (
+    ExperimentError,
     comparable,
     compared_markdown,
     definition_names,
@@ -458,3 +459,34 @@ def test_a_level_may_run_its_own_seeds():
     # the quick section's seeds (and the caller's) serve every level
     assert {r.seed for r in expand(resolve(d, quick=True))} == set(d["quick"]["seeds"])
     assert {r.seed for r in expand(resolve(d, seeds=[7]))} == {7}
+
+
+def test_the_local_ray_cluster_refuses_a_client_without_its_token(tmp_path):
+    """Ray 2.60 binds its local cluster's GCS server and raylet to every interface, so the
+    cluster a batch starts for itself runs with token authentication: a client that does not
+    hold the token is refused. And --address with nothing behind it ends in one line, fast."""
+    pytest.importorskip("ray")
+    from nbvs_drake.experiments.runner import make_executor
+    t0 = time.perf_counter()
+    with pytest.raises(ExperimentError, match="no Ray cluster answers at 127.0.0.1:1"):
+        make_executor("ray", 1, "127.0.0.1:1")._init()
+    assert time.perf_counter() - t0 < 30
+    ex = make_executor("ray", 1)
+    old = os.environ.get("RAY_AUTH_MODE")
+    try:
+        ray = ex._init()
+        assert os.environ["RAY_AUTH_MODE"] == "token"
+        gcs = ray.get_runtime_context().gcs_address
+        code = ("import ray, sys\n"
+                "try:\n    ray.init(address=sys.argv[1], log_to_driver=False)\n"
+                "except Exception as e:\n    print('REFUSED', type(e).__name__); sys.exit(3)\n"
+                "print('CONNECTED')\n")
+        env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN="not-the-token", RAY_USAGE_STATS_ENABLED="0")
+        p = subprocess.run([sys.executable, "-c", code, gcs], env=env, capture_output=True, text=True, timeout=120)
+        assert p.returncode == 3 and "REFUSED" in p.stdout, p.stdout + p.stderr
+    finally:
+        ex.close()
+        if old is None:
+            os.environ.pop("RAY_AUTH_MODE", None)
+        else:
+            os.environ["RAY_AUTH_MODE"] = old

@@ -131,6 +131,15 @@ def draw_versus(r, table, fig_spec, path: Path):
         y, _ = _metric_point(c, name, stat)
         if y is not None:
             ax.axhline(y, ls="--", lw=1.2, color=f"C{(len(xs) + 3 + cells_m.index(c)) % 10}", label=c["label"])
+    if fig_spec.get("bound") == "eq18" and xs:
+        # Vasquez-Gomez et al. 2017 eq. 18 read the other way: with k rollouts, a trajectory
+        # whose error region meets the obstacles with probability gamma >= (1 - alpha^(1/k)) / eta
+        # is caught with confidence 1 - alpha; below that it may pass (eta = 1 / 0.997)
+        alpha, eta = float(fig_spec.get("alpha", 0.01)), 1 / 0.997
+        allx = [float(c["x"]) for cs in xs.values() for c in cs]
+        k = np.geomspace(max(min(allx), 1.0), max(allx), 200)
+        ax.plot(k, 100 * (1 - alpha ** (1 / k)) / eta, ":", color="0.3", lw=1.5,
+                label=f"eq. 18 bound on undetected collision probability (alpha = {alpha:g})")
     if fig_spec.get("xscale"):
         ax.set_xscale(fig_spec["xscale"])
     ax.set_xlabel(fig_spec.get("xlabel", "x"))

@@ -275,8 +275,33 @@ class RayExecutor:
         env = {"env_vars": {"NUMBA_NUM_THREADS": str(self.threads), "RAY_USAGE_STATS_ENABLED": "0"}}
         if ray.is_initialized():
             return ray
+        # token authentication (Ray >= 2.52): Ray 2.60's local cluster listens on every network
+        # interface (its GCS server and raylet bind 0.0.0.0 whatever the node address), so the
+        # cluster a batch starts for itself runs with RAY_AUTH_MODE=token (a token is generated
+        # at ~/.ray/auth_token when there is none): a client without the token is refused. For
+        # --address, token mode is used when a token is at hand (RAY_AUTH_TOKEN,
+        # RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token) and the mode is not set, as `--address auto` does.
+        if "RAY_AUTH_MODE" not in os.environ and (not self.address or _ray_token_at_hand()):
+            os.environ["RAY_AUTH_MODE"] = "token"
+            try:  # Ray caches its config at import: refresh it, as Ray's own token setup does
+                from ray._raylet import Config
+                Config.initialize("")
+            except Exception:  # noqa: BLE001 - an older Ray without it reads the variable at init
+                pass
         if self.address:
-            ray.init(address=self.address, runtime_env=env, log_to_driver=False)
+            _probe_ray_address(self.address)
+            try:
+                ray.init(address=self.address, runtime_env=env, log_to_driver=False)
+            except Exception as e:  # noqa: BLE001 - ConnectionError, AuthenticationError, RuntimeError
+                msg = " ".join(str(e).split())[:300]
+                if "uthenticat" in type(e).__name__ + msg or "token" in msg.lower():
+                    raise ExperimentError(
+                        f"the Ray cluster at {self.address} refused the connection ({type(e).__name__}: {msg}); "
+                        "a cluster with token authentication needs its token: RAY_AUTH_TOKEN=... or "
+                        "RAY_AUTH_TOKEN_PATH=FILE (or ~/.ray/auth_token, from `ray get-auth-token` on the "
+                        "head node)") from None
+                raise ExperimentError(f"cannot connect to the Ray cluster at {self.address} "
+                                      f"({type(e).__name__}: {msg})") from None
         else:
             ray.init(num_cpus=self.jobs, include_dashboard=False, runtime_env=env, log_to_driver=False,
                      object_store_memory=200 * 1024 ** 2)
@@ -321,6 +346,29 @@ class RayExecutor:
             import ray
             ray.shutdown()
             self._started = False
+
+
+def _ray_token_at_hand() -> bool:
+    if os.environ.get("RAY_AUTH_TOKEN") or os.environ.get("RAY_AUTH_TOKEN_PATH"):
+        return True
+    return (Path.home() / ".ray" / "auth_token").is_file()
+
+
+def _probe_ray_address(address: str, timeout: float = 5.0):
+    """A HOST:PORT address must accept a TCP connection within `timeout` seconds (Ray's own
+    connection retries take minutes): else one line naming the address. `auto` and
+    `ray://` addresses are left to Ray."""
+    import socket
+    host, sep, port = address.rpartition(":")
+    if address == "auto" or address.startswith("ray://") or not sep or not port.isdigit():
+        return
+    try:
+        with socket.create_connection((host.strip("[]") or "127.0.0.1", int(port)), timeout=timeout):
+            pass
+    except OSError as e:
+        raise ExperimentError(f"no Ray cluster answers at {address} ({e.strerror or type(e).__name__}); "
+                              "start one there (`ray start --head --port PORT`) or leave out --address "
+                              "for a local one") from None
 
 
 def make_executor(name: str, jobs: int | None, address: str | None = None):
@@ -539,6 +587,12 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             batch.bar.set_postfix(failed=len(failed_before))
         try:
             ex.run(batch, todo)
+        except KeyboardInterrupt:
+            from ..errors import Interrupted
+            n = sum(1 for sp in specs if (batch.final(sp) / "summary.json").is_file())
+            raise Interrupted(f"interrupted: {n} of {len(specs)} runs of {r['name']} are finished in "
+                              f"{exp_dir / 'runs'}" + (f" and recorded in {batch.records}" if batch.records else "")
+                              + f"; the same command goes on from there (`--table-only` writes their table)") from None
         finally:
             if batch.bar is not None:
                 batch.bar.close()
@@ -569,6 +623,18 @@ def _same_settings(rec: dict, spec: RunSpec) -> bool:
     return was is not None and settings_key(was) == settings_key(spec.resolve())
 
 
+def _check_writable(folder: Path):
+    """One line, before any run, when the records folder cannot be created or written."""
+    import tempfile
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=folder, prefix=".write-check-"):
+            pass
+    except OSError as e:
+        raise ExperimentError(f"the records folder {folder} cannot be written ({e.strerror or e}); "
+                              "choose another --records") from None
+
+
 def _restore_records(batch: Batch, specs, records, folder: str) -> int:
     """Restores the recorded runs that batch's folder lacks, and sets batch.records: each
     run's own record (records/<folder>/<run>.json.gz), or else the record of the same run made
@@ -581,6 +647,7 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
         return 0
     from .records import RecordIndex, read_record, restore
     batch.records = Path(records) / folder
+    _check_writable(batch.records)
     index = RecordIndex(Path(records))
     n = 0
     for spec in specs:

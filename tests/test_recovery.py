@@ -1,0 +1,155 @@
+"""Planning under motion noise beyond the paper (planning/recovery.py): verified views (a
+localisation frame before the sensing scan, correction, re-localisation) in the Localisation
+system, the recovery geometry, and the expected utility's arm-only fallback."""
+
+import numpy as np
+import pytest
+from pydrake.common.value import AbstractValue
+from test_registration import _cloud, _first_scan_then_plan, _noisy_second_scan, renderer  # noqa: F401
+
+from nbvs_drake.config import load_scenario
+from nbvs_drake.motion import ControlSequence
+from nbvs_drake.planning.recovery import (
+    aim_error,
+    arm_correction,
+    camera_error,
+    landmarks_in_view,
+    look_at_point,
+    registration_landmarks,
+    relocalisation_scores,
+)
+from nbvs_drake.registration import RegistrationConfig, region_mask
+
+
+def test_a_frame_that_cannot_be_registered_triggers_relocalisation_then_the_next_registers(renderer):  # noqa: F811
+    """Verified views: the frame at the end of a noisy plan that misses the object is rejected
+    by the registration (too few points); it is neither integrated nor counted, and the belief
+    asks for re-localisation. The re-localisation view's frame (the object back in view)
+    registers and corrects the belief, which then asks for a correction (it is not yet at
+    the planned view); after the exact arm-only correction the frame is the sensing scan,
+    with the two localisation frames reported beside it."""
+    sc, r, s1 = renderer
+    sc.mission.verify_views = True
+    for draw in range(20):  # a noisy draw after which the object is still in view
+        q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, draw, 0.4)
+        above = P2[:, 2] > sc.scene.table_height + 0.02
+        if np.count_nonzero(above & region_mask(sc, P2, RegistrationConfig())) > 2000:
+            break
+    loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
+    mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
+    tau_port = sim.get_system().GetInputPort("controls")
+    m1 = mapper.GetOutputPort("map").Eval(mctx)
+    # plan 1 is a view plan: its target is its planned end state
+    tau_port.FixValue(ctx, AbstractValue.Make(ControlSequence(1, 0.1, U, states, "view", states[-1])))
+    far = P2[~region_mask(sc, P2, RegistrationConfig())][:500]  # nothing of the table or object
+    pc.GetMutableData().set_value(_cloud(far))
+    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
+    sim.AdvanceTo(0.25)
+    b = loc.GetOutputPort("belief").Eval(lctx)
+    m = mapper.GetOutputPort("map").Eval(mctx)
+    assert m.scan_count == 1 and np.array_equal(m.logodds, m1.logodds)  # not integrated, not counted
+    assert b.check == "relocalise" and b.scan == 1 and b.frame == 2
+    assert b.covariance[2, 2] > 0.01  # the plan's spread kept for the re-localisation view
+    # the re-localisation view (here: no motion, the object back in view) registers
+    hold = ControlSequence(2, 0.1, np.zeros((0, 7)), qb[None], "relocalise", states[-1])
+    tau_port.FixValue(ctx, AbstractValue.Make(hold))
+    sim.AdvanceTo(0.35)
+    pc.GetMutableData().set_value(_cloud(P2))
+    status.GetMutableData().set_value(np.array([2.0, 0.0, 1.0]))
+    sim.AdvanceTo(0.45)
+    b = loc.GetOutputPort("belief").Eval(lctx)
+    assert b.check == "correct" and b.frame == 3 and not np.any(b.covariance)
+    assert mapper.GetOutputPort("map").Eval(mctx).scan_count == 1
+    from nbvs_drake.pose import state_error
+    assert state_error(qt, b.state)[1] < 0.5 * state_error(qt, qb)[1]  # the heading error found
+    # the exact arm-only correction: its frame is the sensing scan
+    fix = ControlSequence(3, 0.1, np.zeros((0, 7)), b.state[None], "correct", states[-1])
+    tau_port.FixValue(ctx, AbstractValue.Make(fix))
+    sim.AdvanceTo(0.55)
+    status.GetMutableData().set_value(np.array([3.0, 0.0, 1.0]))
+    sim.AdvanceTo(0.65)
+    m = mapper.GetOutputPort("map").Eval(mctx)
+    rep = mapper.GetOutputPort("scan_report").Eval(mctx).info
+    assert m.scan_count == 2 and rep["integrated"]
+    assert [f["check"] for f in rep["frames"]] == ["relocalise", "correct"]
+    assert loc.GetOutputPort("belief").Eval(lctx).check == ""
+
+
+def test_recovery_geometry(kin):
+    sc = load_scenario("teapot_eu_mu")
+    q = np.array([-1.3, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0])  # the start, looking at the table
+    assert camera_error(kin, q, q) == pytest.approx((0.0, 0.0), abs=1e-6)
+    # a heading error: the arm's first joint turns it back onto the planned look-at point
+    point = look_at_point(kin, q, [0.0, 0.0, 0.6])
+    off = q.copy()
+    off[2] += 0.25
+    assert aim_error(kin, off, point)[0] > 0.2
+    fixed = arm_correction(kin, off, q, point)
+    assert np.array_equal(fixed[:3], off[:3])  # the base stays: the motion is exact
+    assert aim_error(kin, fixed, point)[0] < 0.02
+    # re-localisation: a view of the table and the object scores higher than one away from it
+    marks = registration_landmarks(sc, np.array([[0.0, 0.0, 0.6], [0.05, 0.0, 0.65]]), np.random.default_rng(0))
+    away = q.copy()
+    away[3] = 2.5  # the arm turned away from the table
+    assert landmarks_in_view(kin, sc, q[None], marks)[0] > 0.1
+    assert landmarks_in_view(kin, sc, away[None], marks)[0] == 0.0
+    cov = np.diag([0.01, 0.01, 0.04])
+    s = relocalisation_scores(kin, sc, np.stack([q, away]), cov, marks, np.random.default_rng(1))
+    assert s[0] > 0.05 and s[1] == 0.0
+
+
+def test_an_eu_plan_with_no_feasible_candidate_tries_the_arm_only_fallback(first_scan_map, kin):
+    """Noise so large that every rollout of every candidate collides: without the fallback the
+    plan is no_feasible; with planner.noise_fallback it tries views from the current base by
+    the arm alone (exact under the noise) before it gives up, and finds one."""
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.interface import PlanRequest
+    _, omap = first_scan_map
+    sc = load_scenario("teapot_eu_mu", settings=["planner.n_candidates=400", "planner.eu_samples=20",
+                                                 "noise.sigma_v=2.0", "noise.sigma_w=3.0"])
+    q0 = np.array(sc.robot.start, float)
+
+    def plan(fallback):
+        sc.planner.noise_fallback = fallback
+        return make_planner(sc, kin).plan(PlanRequest(omap, q0, np.random.default_rng(3)))
+    res = plan(False)
+    assert res.status == "no_feasible"
+    res = plan(True)
+    assert res.status == "ok" and res.factors["fallback"] == "arm_only"
+    assert np.array_equal(res.q_goal[:3], q0[:3]) and not np.any(res.controls[:, :2])  # the base stays
+    assert res.stages["fallback"]["eu_feasible"] >= 1
+
+
+@pytest.mark.parametrize("check", ["", "relocalise"])
+def test_the_planner_answers_a_localisation_frame(kin, first_scan_map, check):
+    """NBVSPlanner (Drake style): a belief whose last frame asks for re-localisation gets an
+    arm-only plan with the same target and no new report scan; a plain belief gets nothing new."""
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.recovery import Recovery
+    from nbvs_drake.systems.messages import Belief
+    from nbvs_drake.systems.nbvs_planner import NBVSPlanner, PlannerMemory
+    sc, omap = first_scan_map
+    sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"])
+    q0 = np.array(sc.robot.start, float)
+    impl = make_planner(sc, kin)
+    sysm = NBVSPlanner(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
+    from pydrake.systems.analysis import Simulator
+    sim = Simulator(sysm)
+    ctx = sim.get_mutable_context()
+    target = q0.copy()
+    target[2] += 0.3
+    mem = PlannerMemory(ControlSequence(4, 0.1, np.zeros((0, 7)), q0[None], "view", target), omap.scan_count,
+                        answered_frame=1, target=target)
+    ctx.get_mutable_abstract_state(0).set_value(mem)
+    sysm.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+    cov = np.diag([0.004, 0.004, 0.02])
+    sysm.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(Belief(1, q0, q0, cov, 2, check)))
+    sim.AdvanceTo(0.05)  # one update
+    new = ctx.get_abstract_state(0).get_value()
+    if not check:
+        assert new is mem or new.controls.plan_id == 4
+        return
+    tau = new.controls
+    assert tau.plan_id == 5 and tau.purpose == "relocalise" and np.array_equal(tau.target, target)
+    assert np.array_equal(tau.states[-1][:3], q0[:3]) and not np.any(tau.controls[:, :2])
+    assert new.report.scan == mem.report.scan and new.answered_frame == 2

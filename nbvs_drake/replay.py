@@ -12,7 +12,8 @@ a green trail. A run stopped by a collision ends with the robot moving along the
 trajectory's executed part (a dark red trail) to the pose where it collided, marked by a red
 cross on the floor. With verified views (mission.verify_views), a scan taken after
 localisation frames gets a vertical mark per frame over the robot: orange for a corrected
-view, magenta for a re-localisation (planning/recovery.py). Every overlay is a Meshcat object whose "visible" property is switched in the
+view, magenta for a re-localisation (planning/recovery.py). Every overlay is a Meshcat object
+whose "visible" property is switched in the
 recording. Motions are replayed `speedup` times faster than simulated (at most
 `max_motion_s` each); the robot waits while a map and a plan are shown.
 

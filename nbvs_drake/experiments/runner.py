@@ -592,7 +592,7 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             n = sum(1 for sp in specs if (batch.final(sp) / "summary.json").is_file())
             raise Interrupted(f"interrupted: {n} of {len(specs)} runs of {r['name']} are finished in "
                               f"{exp_dir / 'runs'}" + (f" and recorded in {batch.records}" if batch.records else "")
-                              + f"; the same command goes on from there (`--table-only` writes their table)") from None
+                              + "; the same command goes on from there (`--table-only` writes their table)") from None
         finally:
             if batch.bar is not None:
                 batch.bar.close()

@@ -148,7 +148,7 @@ def main(argv=None) -> int:
     e.add_argument("--out", default=None, help="experiments folder (default: results/experiments)")
     e.add_argument("--retry-failed", action="store_true", help="rerun the runs that failed before")
     e.add_argument("--object", action="append", default=[], metavar="NAME=PATH",
-                   help="one more object level (an OBJ/PLY/STL mesh) for experiments with an object factor")
+                   help="one more object level (an OBJ/PLY/STL/OFF/GLB mesh) for experiments with an object factor")
     e.add_argument("--to", default=None, help="report: the markdown file (default: docs/results.md)")
     e.add_argument("--figures", default=None, metavar="DIR",
                    help="report: where the tables' figures are copied to and linked from "

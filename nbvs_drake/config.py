@@ -38,7 +38,7 @@ class ObjectConfig:
     #: "teapot" (Newell's patches), "bunny" (the Stanford bunny, models/stanford_bunny.ply),
     #: "dragon" (the Stanford dragon, models/stanford_dragon.ply) or "mesh" (the file `mesh`)
     kind: str = "teapot"
-    mesh: str = ""  #: OBJ/PLY/STL path (relative to the scenario file) when kind = mesh
+    mesh: str = ""  #: OBJ/PLY/STL/OFF/glTF/GLB path (relative to the scenario file) when kind = mesh
     #: longest side in metres of the mesh's own (unrotated) bounding box; 0: use `scale` as
     #: is; -1: the kind's default (teapot 0.40, bunny 0.467 and dragon 0.511 = the papers'
     #: scene objects, mesh 0.40). A `kind` changed by a setting (`--set scene.object.kind=...`)

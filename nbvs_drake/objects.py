@@ -1,5 +1,6 @@
 """The object to reconstruct: Newell's Utah teapot (tessellated from its 32 bicubic Bezier
-patches), the Stanford bunny, the Stanford dragon or any OBJ/PLY/STL mesh, oriented and placed on the table;
+patches), the Stanford bunny, the Stanford dragon or any mesh file (OBJ, PLY, STL, OFF, glTF/GLB),
+oriented and placed on the table;
 ground-truth surface samples."""
 
 from __future__ import annotations
@@ -127,25 +128,46 @@ def load_dragon() -> ObjectMesh:
 # --------------------------------------------------------------------------------------
 
 
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".off", ".gltf", ".glb")
+
+
 def load_mesh_file(path: Path) -> ObjectMesh:
-    """Reads an OBJ/PLY/STL triangle mesh with Open3D."""
+    """Reads a triangle mesh with trimesh: OBJ (triangles, quads or n-gons, which it
+    triangulates), PLY, STL, OFF, glTF/GLB (every part of the scene, in its node frames,
+    joined into one mesh). Vertices and faces are kept as the file has them (no merging)."""
     path = Path(path)
     if not path.is_file():
         raise MeshError(f"object mesh not found: {path}")
-    if path.suffix.lower() not in (".obj", ".ply", ".stl", ".off", ".gltf", ".glb"):
-        raise MeshError(f"unsupported mesh format {path.suffix!r} for {path} (use OBJ, PLY or STL)")
-    import open3d as o3d
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise MeshError(f"unsupported mesh format {path.suffix!r} for {path} (use OBJ, PLY, STL, OFF, glTF or GLB)")
+    import trimesh
     try:
-        m = o3d.io.read_triangle_mesh(str(path))
-    except Exception as e:  # pragma: no cover - open3d rarely raises
-        raise MeshError(f"cannot read object mesh {path}: {e}") from None
-    V = np.asarray(m.vertices, dtype=float)
-    T = np.asarray(m.triangles, dtype=np.int32)
+        m = trimesh.load(str(path), process=False, force="mesh")
+        V, T = m.vertices, m.faces
+    except Exception as e:  # noqa: BLE001 - trimesh raises many types on a bad file
+        V = T = None
+        if path.suffix.lower() == ".off":  # trimesh 5.2 fails on OFF n-gons mixed with other faces
+            V, T = _read_with_open3d(path)
+        if V is None or not len(T):
+            raise MeshError(f"cannot read object mesh {path}: {' '.join(str(e).split())[:200] or type(e).__name__}") \
+                from None
+    V = np.asarray(V, dtype=float).reshape(-1, 3)
+    T = np.asarray(T, dtype=np.int32).reshape(-1, 3)
     if len(V) == 0 or len(T) == 0:
-        raise MeshError(f"object mesh {path} is unreadable or has no triangles")
+        raise MeshError(f"object mesh {path} is unreadable or has no faces")
     if not np.all(np.isfinite(V)):
         raise MeshError(f"object mesh {path} has non-finite vertex coordinates")
     return ObjectMesh(V, T)
+
+
+def _read_with_open3d(path: Path):
+    """(vertices, triangles) by Open3D's reader (it triangulates OFF polygons), or (None, None)."""
+    import open3d as o3d
+    try:
+        m = o3d.io.read_triangle_mesh(str(path))
+    except Exception:  # noqa: BLE001
+        return None, None
+    return np.asarray(m.vertices), np.asarray(m.triangles)
 
 
 # --------------------------------------------------------------------------------------

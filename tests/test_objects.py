@@ -1,13 +1,22 @@
 """Objects: the built-in bunny, orientation (up, rpy_deg), size defaults per kind, validation."""
 
 import math
+import shutil
 
 import numpy as np
 import pytest
 
 from nbvs_drake.config import Scenario, load_scenario, validate
 from nbvs_drake.errors import ScenarioError
-from nbvs_drake.objects import build_object, object_orientation, rpy_rotation, tessellate_teapot, up_rotation
+from nbvs_drake.objects import (
+    ObjectMesh,
+    build_object,
+    object_orientation,
+    rpy_rotation,
+    sample_surface,
+    tessellate_teapot,
+    up_rotation,
+)
 
 
 def _write_box_obj(path, size, offset=(0.0, 0.0, 0.0)):
@@ -181,3 +190,78 @@ def test_short_dragon_run_reconstructs_it(tmp_path):
     s = run_mission(validate(sc), tmp_path / "run", verbose=False)
     assert s["scans"] == 2 and s["collisions"] == 0
     assert s["coverage_by_scan"][1] > s["coverage_by_scan"][0] > 0.15
+
+
+def _surface_samples(mesh, n=4000):
+    return sample_surface(mesh, n, np.random.default_rng(0))
+
+
+def _distance_to(mesh, P):
+    """Unsigned distances (N,) of points to a trimesh's surface (Open3D's raycasting scene)."""
+    import open3d as o3d
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
+                        o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
+    return scene.compute_distance(o3d.core.Tensor(np.asarray(P, np.float32))).numpy()
+
+
+def test_quad_ngon_glb_and_off_meshes_load_to_the_same_surface(tmp_path):
+    """One shape (a 0.2 x 0.1 x 0.3 box with a hexagonal top and bottom cut as n-gons) as an
+    OBJ of triangles, of quads/n-gons, an OFF and a GLB: the same triangle surface (area,
+    bounds, every sample of one on the other). A mesh in millimetres scales like one in metres."""
+    import trimesh
+
+    from nbvs_drake.objects import load_mesh_file
+    # a hexagonal prism: 2 hexagons (n-gons) and 6 quads
+    ang = np.arange(6) * np.pi / 3
+    ring = np.c_[0.1 * np.cos(ang), 0.1 * np.sin(ang)]
+    V = np.r_[np.c_[ring, np.zeros(6)], np.c_[ring, np.full(6, 0.3)]]
+    quads = [[i, (i + 1) % 6, 6 + (i + 1) % 6, 6 + i] for i in range(6)]
+    ngons = [list(range(5, -1, -1)), list(range(6, 12))]
+    faces = ngons + quads
+    obj = tmp_path / "prism_ngon.obj"
+    obj.write_text("".join(f"v {a} {b} {c}\n" for a, b, c in V)
+                   + "".join("f " + " ".join(str(i + 1) for i in f) + "\n" for f in faces))
+    off = tmp_path / "prism.off"
+    off.write_text(f"OFF\n{len(V)} {len(faces)} 0\n" + "".join(f"{a} {b} {c}\n" for a, b, c in V)
+                   + "".join(f"{len(f)} " + " ".join(map(str, f)) + "\n" for f in faces))
+    tri = load_mesh_file(obj)
+    assert len(tri.triangles) == 2 * 4 + 6 * 2  # hexagons: 4 triangles each, quads: 2
+    ref = trimesh.Trimesh(tri.vertices, tri.triangles, process=False)
+    glb = tmp_path / "prism.glb"
+    ref.export(glb)
+    stl = tmp_path / "prism.stl"
+    ref.export(stl)
+    mm = tmp_path / "prism_mm.obj"  # the same shape in millimetres
+    mm.write_text("".join(f"v {1000 * a} {1000 * b} {1000 * c}\n" for a, b, c in V)
+                  + "".join("f " + " ".join(str(i + 1) for i in f) + "\n" for f in faces))
+    area = ref.area
+    for path in (off, glb, stl, mm):
+        m = load_mesh_file(path)
+        scale = 1e-3 if path == mm else 1.0
+        got = trimesh.Trimesh(m.vertices * scale, m.triangles, process=False)
+        assert got.area == pytest.approx(area, rel=1e-6), path
+        np.testing.assert_allclose(got.bounds, ref.bounds, atol=1e-6)
+        d = _distance_to(ref, _surface_samples(ObjectMesh(got.vertices, got.faces)))
+        assert d.max() < 1e-6, path
+    # scaled to a size, the millimetre mesh and the metre mesh are the same object
+    for src in (obj, mm):
+        shutil.copy(src, tmp_path / "use.obj")
+        sc = _mesh_scenario(tmp_path, size=0.3)
+        sc.scene.object.mesh = "use.obj"
+        lo, hi = build_object(sc).bounds
+        np.testing.assert_allclose(hi - lo, [0.2, 0.1 * np.sqrt(3), 0.3], atol=1e-6)
+
+
+def test_a_file_that_is_no_mesh_keeps_its_one_line_error(tmp_path):
+    from nbvs_drake.errors import MeshError
+    from nbvs_drake.objects import load_mesh_file
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(b"not a gltf at all")
+    with pytest.raises(MeshError, match="bad.glb") as e:
+        load_mesh_file(bad)
+    assert "\n" not in str(e.value)
+    empty = tmp_path / "empty.obj"
+    empty.write_text("# nothing\n")
+    with pytest.raises(MeshError, match="no faces"):
+        load_mesh_file(empty)

@@ -204,7 +204,7 @@ def with_objects(d: dict, objects: list[str]) -> dict:
     for spec in objects:
         label, sep, path = spec.partition("=")
         if not sep or not label or not path:
-            raise ExperimentError(f"--object {spec!r}: expected NAME=PATH (an OBJ/PLY/STL mesh)")
+            raise ExperimentError(f"--object {spec!r}: expected NAME=PATH (an OBJ/PLY/STL/OFF/GLB mesh)")
         p = Path(path).expanduser().resolve()
         if not p.is_file():
             raise ExperimentError(f"--object {spec!r}: no such file {p}")

@@ -24,6 +24,7 @@ OUTPUTS = {
     "summary": "summary.json",
     "iterations": "iterations.jsonl",
     "model": "model.ply",
+    "mesh": "model_mesh.ply",
     "map_npz": "map.npz",
     "map_bt": "map.bt",
     "coverage_png": "coverage.png",
@@ -39,7 +40,7 @@ class RunResult:
     - `summary`: the content of summary.json (coverage, scans, collisions, stop_reason, ...).
     - `out`: the run folder.
     - `paths`: name -> path of each output that exists (keys from `OUTPUTS`: scenario,
-      summary, iterations, model, map_npz, map_bt, coverage_png, paths_png, replay_html; the
+      summary, iterations, model, mesh (model_mesh.ply), map_npz, map_bt, coverage_png, paths_png, replay_html; the
       last two are missing when writing them failed, see summary["visual_output_errors"]).
     - `records`: the iteration records of iterations.jsonl, one dict per scan.
     """

@@ -74,6 +74,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     from .systems.nbvs_planner import NBVSPlanner
     from .systems.noisy_velocity_controller import NoisyVelocityController
     from .systems.octree_mapper import OctreeMapper
+    from .systems.surface_fusion import SurfaceFusion
 
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -103,6 +104,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
         recovery = Recovery(sc, kin, planner_impl.motion, planner_impl.obstacles)
     planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0, recovery))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
+    fusion = builder.AddNamedSystem("surface_fusion", SurfaceFusion(sc, dt))
 
     builder.Connect(planner.GetOutputPort("controls"), ctrl.GetInputPort("controls"))
     builder.Connect(ctrl.GetOutputPort("velocity"), kplant.GetInputPort("velocity"))
@@ -115,6 +117,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     builder.Connect(planner.GetOutputPort("controls"), loc.GetInputPort("controls"))
     builder.Connect(mapper.GetOutputPort("map"), loc.GetInputPort("map"))
     builder.Connect(loc.GetOutputPort("registered_scan"), mapper.GetInputPort("registered_scan"))
+    builder.Connect(loc.GetOutputPort("registered_scan"), fusion.GetInputPort("registered_scan"))
     builder.Connect(mapper.GetOutputPort("map"), planner.GetInputPort("map"))
     builder.Connect(loc.GetOutputPort("belief"), planner.GetInputPort("belief"))
     builder.Connect(kplant.GetOutputPort("state"), monitor.GetInputPort("state"))
@@ -122,7 +125,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
 
     systems = dict(scene_graph=scene_graph, kinematic_plant=kplant, controller=ctrl, rgbd=rgbd,
                    depth_noise=camera.noise, to_point_cloud=to_pc, localisation=loc, mapper=mapper,
-                   planner=planner, monitor=monitor,
+                   planner=planner, monitor=monitor, surface_fusion=fusion,
                    believed_camera_pose=belief_pose)
     if log is not None:
         rec = builder.AddNamedSystem("mission_recorder", MissionRecorder(

@@ -1,7 +1,7 @@
 """Runs a reconstruction mission: the Drake Simulator advances the mission diagram until the
 planner stops (scan budget spent, no valid candidate, no path); then the results are written:
 scenario.yaml (the resolved scenario, written first), summary.json, iterations.jsonl (written
-during the run), model.ply, map.npz, coverage.png."""
+during the run), model.ply, model_mesh.ply (the TSDF surface), map.npz, coverage.png."""
 
 from __future__ import annotations
 
@@ -127,6 +127,18 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))
 
     write_ply(out / "model.ply", omap.object_points)
+    t_rec = time.perf_counter()
+    fusion = md.systems["surface_fusion"]
+    mesh_V, mesh_T = fusion.GetOutputPort("mesh").Eval(fusion.GetMyContextFromRoot(ctx))
+    from .reconstruction import mesh_metrics, point_metrics, write_mesh_ply
+    write_mesh_ply(out / "model_mesh.ply", mesh_V, mesh_T)
+    gt_V, gt_T, vox = md.mesh.vertices, md.mesh.triangles, sc.mapper.voxel_size
+    reconstruction = {
+        "points": point_metrics(omap.object_points, gt_V, gt_T, md.gt_points, vox),
+        "mesh": mesh_metrics(mesh_V, mesh_T, gt_V, gt_T, md.gt_points, vox, np.random.default_rng([sc.seed, 23])),
+        "mesh_vertices": int(len(mesh_V)), "mesh_triangles": int(len(mesh_T)),
+    }
+    t_rec = time.perf_counter() - t_rec
     omap.save_npz(out / "map.npz")
     from .mapping.octomap_io import write_bt
     write_bt(omap, out / "map.bt")
@@ -166,6 +178,9 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "stop_reason": stop_reason,
         "collision": collision,
         "distance": float(sum(p["factors"]["rho"] for p in plans)),
+        # accuracy, completeness, Chamfer, precision / recall / F-score at 3 mm, 5 mm and one voxel
+        # (reconstruction.py), of the point model and of the TSDF mesh (model_mesh.ply)
+        "reconstruction": reconstruction,
         "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
         "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
         "object_points": int(len(omap.object_points)),
@@ -187,6 +202,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
             "registration": float(sum(r["scan"].get("register_s", 0.0) for r in records)),
             "render": float(sum(r["scan"].get("render_s", 0.0) for r in records)),
             "coverage_eval": float(sum(r["coverage_s"] for r in records)),
+            "reconstruction": t_rec,
         },
         "wall_s": time.perf_counter() - t_start,
     }
@@ -194,7 +210,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     # paths.png and replay.html after summary.json: a failure there cannot lose the results
     from .visual_outputs import write_visual_outputs
     vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
-                               verbose=verbose, collision=collision)
+                               verbose=verbose, collision=collision, model_mesh=(mesh_V, mesh_T))
     summary["times_s"]["visual_outputs"] = vis["seconds"]
     if vis["errors"]:
         summary["visual_output_errors"] = vis["errors"]

@@ -12,7 +12,8 @@ a green trail. A run stopped by a collision ends with the robot moving along the
 trajectory's executed part (a dark red trail) to the pose where it collided, marked by a red
 cross on the floor. With verified views (mission.verify_views), a scan taken after
 localisation frames gets a vertical mark per frame over the robot: orange for a corrected
-view, magenta for a re-localisation (planning/recovery.py). Every overlay is a Meshcat object
+view, magenta for a re-localisation (planning/recovery.py). The reconstructed surface
+(model_mesh.ply, green) appears after the last scan. Every overlay is a Meshcat object
 whose "visible" property is switched in the
 recording. Motions are replayed `speedup` times faster than simulated (at most
 `max_motion_s` each); the robot waits while a map and a plan are shown.
@@ -35,6 +36,7 @@ from .mapping.occupancy import OccupancyMap
 from .meshcat_draw import (
     COLLISION_RGBA,
     CORRECT_RGBA,
+    MODEL_MESH_RGBA,
     PLAN_RGBA,
     RELOCALISE_RGBA,
     ROOT,
@@ -98,13 +100,14 @@ def _robot_visualizer(sc, meshcat, obj_mesh_path):
 def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap] | None,
                       obj_mesh_path=None, *, fps: float = 12.0, hold_s: float = 1.0,
                       plan_hold_s: float = 1.2, max_motion_s: float = 4.0, speedup: float = 2.5,
-                      meshcat=None, collision: dict | None = None) -> dict:
+                      meshcat=None, collision: dict | None = None, model_mesh=None) -> dict:
     """Writes the recording of a run to `out_path` (replay.html). `records` are the
     iterations.jsonl records; `maps[i]` the map after scan i+1 (None or shorter: the scans
     without a map show no voxels). The fields of the paths are optional: without
     `executed_path` the robot jumps to the next scan's true state. `collision` (summary.json's,
     None when nothing collided): the motion after the last scan that ended in a collision.
-    Returns sizes and times."""
+    `model_mesh`: (vertices, triangles) of the reconstructed surface (model_mesh.ply), shown
+    in green from the last scan on. Returns sizes and times."""
     from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
 
     from .robot import RobotKinematics
@@ -168,6 +171,13 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
         toggled.append(f"{ROOT}/frames/{i + 1}")
         n_marked += len(frames)
 
+    mesh_shown = model_mesh is not None and len(model_mesh[1]) > 0
+    if mesh_shown:  # the reconstructed surface (TSDF), shown at the end
+        mV, mT = model_mesh
+        meshcat.SetTriangleMesh(f"{ROOT}/model_mesh", np.asarray(mV, float).T.copy(), np.asarray(mT, np.int32).T.copy(),
+                                rgba(MODEL_MESH_RGBA))
+        toggled.append(f"{ROOT}/model_mesh")
+
     hit = states_array((collision or {}).get("executed_path"))
     q_hit = states_array([collision["true_state"]])[0] if (collision or {}).get("true_state") else None
     show_hit = len(hit) >= 2 or q_hit is not None
@@ -226,6 +236,8 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
         if q_true is not None:
             pose(q_true, t)  # keyframe: the robot waits until the next motion starts
         q_prev = q_true
+    if mesh_shown:
+        show(f"{ROOT}/model_mesh", t, True)
     if show_hit:  # the colliding motion, then the robot stays where it hit
         if len(hit) >= 2:
             t = move(hit, t)
@@ -260,7 +272,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     info = {"bytes": out_path.stat().st_size, "duration_s": round(t, 2), "robot_frames": n_frames,
             "maps": len(n_voxels), "unknown_points": int(sum(u for u, _ in n_voxels)),
             "occupied_points": int(sum(o for _, o in n_voxels)), "collision_shown": show_hit,
-            "localisation_frames_shown": n_marked,
+            "localisation_frames_shown": n_marked, "model_mesh_shown": mesh_shown,
             "seconds": time.perf_counter() - t0}
     tmpdir.cleanup()
     if own:

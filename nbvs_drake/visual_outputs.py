@@ -11,7 +11,7 @@ from .replay import write_replay_html
 
 
 def write_visual_outputs(out_dir, sc, records: list[dict], maps=None, obj_mesh_path=None,
-                         verbose: bool = False, collision: dict | None = None) -> dict:
+                         verbose: bool = False, collision: dict | None = None, model_mesh=None) -> dict:
     """paths.png (top view of planned vs executed paths) and replay.html in `out_dir`. Each
     is written on its own: a failure is reported (returned under "errors" and printed), never
     raised, so that it cannot cost the run its other results. Returns
@@ -32,7 +32,8 @@ def write_visual_outputs(out_dir, sc, records: list[dict], maps=None, obj_mesh_p
     if obj_mesh_path is not None and not Path(obj_mesh_path).is_file():
         obj_mesh_path = None
     try:
-        info = write_replay_html(out / "replay.html", sc, records, maps, obj_mesh_path, collision=collision)
+        info = write_replay_html(out / "replay.html", sc, records, maps, obj_mesh_path, collision=collision,
+                                 model_mesh=model_mesh)
     except Exception as e:  # noqa: BLE001
         errors.append(f"replay.html: {type(e).__name__}: {e}")
         if verbose:

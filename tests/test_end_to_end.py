@@ -88,7 +88,7 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     shutil.copytree(out, tmp_path / "results" / "small")
     from nbvs_drake.experiments import load_definition, resolve, write_table
     exp = tmp_path / "results" / "experiments" / "motion_noise"
-    shutil.copytree(out, exp / "runs" / "teapot-DU_s1")
+    shutil.copytree(out, exp / "runs" / "teapot-DU-paper_s1")
     write_table(resolve(load_definition("motion_noise"), seeds=[1]), exp)
     (tmp_path / "notebooks").mkdir()
     monkeypatch.chdir(tmp_path / "notebooks")
@@ -101,8 +101,8 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
             exec(compile(cell.source, "coverage_analysis.ipynb", "exec"), ns)
     assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"].records) == s["scans"]
     assert ns["runs"]["small"].summary == json.loads((out / "summary.json").read_text())  # RunResult.load
-    assert ns["table"].cell("teapot/DU")["metrics"]["coverage"]["mean"] == pytest.approx(100 * s["coverage"])
-    assert [len(v) for v in ns["exp_runs"].values()] == [1, 0, 0, 0, 0, 0]
+    assert ns["table"].cell("teapot/DU/paper")["metrics"]["coverage"]["mean"] == pytest.approx(100 * s["coverage"])
+    assert [len(v) for v in ns["exp_runs"].values()] == [1] + [0] * 17
 
 
 def test_same_seed_same_summary(small_run, tmp_path):

@@ -5,7 +5,7 @@ Ray), keeping every finished run, and writes its table and figures.
 
     from nbvs_drake.experiments import load_table
     t = load_table("results/experiments/motion_noise")
-    t.cell("teapot/EU-MU")["metrics"]["coverage"]["mean"]
+    t.cell("teapot/EU-MU/paper")["metrics"]["coverage"]["mean"]
 """
 
 from .aggregate import Table, comparable, compared_markdown, load_table, write_table

@@ -186,7 +186,7 @@ class Localisation(LeafSystem):
                     icp=frame["icp"])
         if self.sc.mission.verify_views:
             info["frames"] = list(mem.frames)
-        scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info)
+        scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info, X_WC)
         belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
         return scan, belief, model, ()
 

@@ -71,13 +71,15 @@ class RegisteredScan(_Immutable):
     origin (3,), the returns (N, 3) and the maximum-range end points of the no-return pixels
     (M, 3), world frame; `integrate`: False when the registration failed and
     mission.skip_unregistered_scans holds it back; `info`: plan_id, t_sim, render_s,
-    register_s, icp (the registration's summary) for the scan report."""
+    register_s, icp (the registration's summary) for the scan report; `pose`: the camera's
+    registered pose X_WC (4, 4)."""
     index: int = 0
     origin: np.ndarray = dc.field(default_factory=lambda: np.zeros(3))
     points: np.ndarray = dc.field(default_factory=lambda: np.zeros((0, 3)))
     free_rays: np.ndarray = dc.field(default_factory=lambda: np.zeros((0, 3)))
     integrate: bool = True
     info: dict = dc.field(default_factory=dict)
+    pose: np.ndarray = dc.field(default_factory=lambda: np.eye(4))  #: X_WC at the registered pose
 
 
 class ScanReport(_Immutable):

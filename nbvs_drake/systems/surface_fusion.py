@@ -1,0 +1,76 @@
+"""SurfaceFusion: the object's surface mesh by TSDF fusion of the registered depth scans."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem
+
+from ..config import Scenario, resolve_sensor
+from ..reconstruction import depth_from_points, fuse_tsdf
+from ..sensor import intrinsics
+from .messages import RegisteredScan
+
+
+class _Scans:
+    """Immutable state: the last scan index seen and the integrated scans as (X_WC, depth)."""
+
+    def __init__(self, index: int = 0, scans: tuple = ()):
+        self.index = index
+        self.scans = scans
+
+    def __deepcopy__(self, memo):
+        return self
+
+
+class SurfaceFusion(LeafSystem):
+    """Keeps every integrated scan as a depth image at its registered camera pose (the returns
+    within W_box grown by `margin`, re-projected with the sensor's intrinsics) and gives the
+    surface mesh of their TSDF fusion (`reconstruction.fuse_tsdf`: 3 mm voxels, 12 mm
+    truncation), cropped to W_box from `mapper.table_clearance` above the table top: the
+    table is not part of the model. A scan not integrated (its registration failed) is left
+    out, as the map leaves it out.
+
+    Input ports:
+      - registered_scan (abstract RegisteredScan): the newest scan at its registered pose.
+    Output ports:
+      - mesh (abstract tuple (vertices (V, 3), triangles (T, 3))): the fused surface.
+    State: abstract (the scans kept).
+    """
+
+    def __init__(self, sc: Scenario, dt: float, voxel: float = 0.003, margin: float = 0.05):
+        super().__init__()
+        self.sc = sc
+        self.voxel = voxel
+        s = sc.scene
+        self._lo = np.array([s.bbox_min[0] - margin, s.bbox_min[1] - margin, s.table_height - margin])
+        self._hi = np.array(s.bbox_max, float) + margin
+        self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.table_height + sc.mapper.table_clearance])
+        self.crop_max = np.array(s.bbox_max, float)
+        self._intr = intrinsics(sc.sensor)
+        self._z_far = resolve_sensor(sc.sensor).z_far
+        self._scan = self.DeclareAbstractInputPort("registered_scan", AbstractValue.Make(RegisteredScan()))
+        self._state = self.DeclareAbstractState(AbstractValue.Make(_Scans()))
+        self.DeclareAbstractOutputPort("mesh", lambda: AbstractValue.Make((np.zeros((0, 3)), np.zeros((0, 3), np.int32))),
+                                       self._calc_mesh, {self.abstract_state_ticket(self._state)})
+        self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
+
+    def _update(self, context, state):
+        mem: _Scans = context.get_abstract_state(self._state).get_value()
+        scan: RegisteredScan = self._scan.Eval(context)
+        if scan.index <= mem.index:
+            return
+        scans = mem.scans
+        if scan.integrate and len(scan.points):
+            P = np.asarray(scan.points, float)
+            P = P[np.all((P >= self._lo) & (P <= self._hi), axis=1)]
+            scans = scans + ((np.asarray(scan.pose, float), depth_from_points(P, scan.pose, *self._intr)),)
+        state.get_mutable_abstract_state(self._state).set_value(_Scans(scan.index, scans))
+
+    def _calc_mesh(self, context, output):
+        mem: _Scans = context.get_abstract_state(self._state).get_value()
+        if not mem.scans:
+            output.set_value((np.zeros((0, 3)), np.zeros((0, 3), np.int32)))
+            return
+        output.set_value(fuse_tsdf(mem.scans, self._intr, self.crop_min, self.crop_max, voxel=self.voxel,
+                                   trunc=4 * self.voxel, z_far=self._z_far))

@@ -51,8 +51,9 @@ class SurfaceFusion(LeafSystem):
         self._z_far = resolve_sensor(sc.sensor).z_far
         self._scan = self.DeclareAbstractInputPort("registered_scan", AbstractValue.Make(RegisteredScan()))
         self._state = self.DeclareAbstractState(AbstractValue.Make(_Scans()))
-        self.DeclareAbstractOutputPort("mesh", lambda: AbstractValue.Make((np.zeros((0, 3)), np.zeros((0, 3), np.int32))),
-                                       self._calc_mesh, {self.abstract_state_ticket(self._state)})
+        empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int32))
+        self.DeclareAbstractOutputPort("mesh", lambda: AbstractValue.Make(empty), self._calc_mesh,
+                                       {self.abstract_state_ticket(self._state)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
 
     def _update(self, context, state):

@@ -391,6 +391,41 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
     return out
 
 
+def bench_oracle(objects=("teapot", "bunny", "dragon"), n_poses: int = 2000, scans: int = 4, seed: int = 1) -> dict:
+    """The ceiling of each object (planning/oracle.py: the share of the ground truth seeable
+    from n_poses reachable collision-free poses; computed here without the cache, then
+    stored in it) with its ray-casting rate, and the greedy oracle's coverage per scan over a
+    short run (`scans`, 1,000 candidates) beside the planner's in the same settings."""
+    import tempfile
+    import time
+
+    from .config import load_scenario
+    from .mission import run_mission
+    from .objects import build_object
+    from .planning.oracle import coverage_ceiling
+    from .robot import RobotKinematics
+    kin = RobotKinematics()
+    out = {"n_poses": n_poses, "objects": {}}
+    for obj in objects:
+        sc = load_scenario(None, seed=seed, settings=[f"scene.object.kind={obj}"])
+        mesh = build_object(sc)
+        t = time.perf_counter()
+        c = coverage_ceiling(sc, kin, mesh, n_poses=n_poses, use_cache=False)
+        row = {"ceiling": c["ceiling"], "poses": c["poses"], "ceiling_s": round(time.perf_counter() - t, 2)}
+        coverage_ceiling(sc, kin, mesh, n_poses=n_poses)  # into the cache for the runs
+        for label, extra in (("oracle", ["planner.strategy=oracle"]), ("nbv", [])):
+            run = load_scenario(None, seed=seed, settings=[f"scene.object.kind={obj}", f"mission.max_scans={scans}",
+                                                           "planner.n_candidates=1000", *extra])
+            with tempfile.TemporaryDirectory() as tmp:
+                t = time.perf_counter()
+                s = run_mission(run, tmp, verbose=False)
+            row[f"{label}_coverage_by_scan"] = [round(v, 4) for v in s["coverage_by_scan"]]
+            row[f"{label}_run_s"] = round(time.perf_counter() - t, 1)
+        row["nbv_of_oracle"] = round(row["nbv_coverage_by_scan"][-1] / row["oracle_coverage_by_scan"][-1], 4)
+        out["objects"][obj] = row
+    return out
+
+
 def main(args) -> int:
     if args.what == "visibility":
         res = bench_visibility(n_views=args.views)
@@ -402,6 +437,8 @@ def main(args) -> int:
         res = bench_collision()
     elif args.what == "prediction":
         res = bench_prediction()
+    elif args.what == "oracle":
+        res = bench_oracle()
     else:
         raise SystemExit(f"unknown benchmark {args.what!r}")
     print(json.dumps(res, indent=None if args.json else 2))

@@ -134,7 +134,8 @@ class PlannerConfig:
     #: "random_sampling" (Vasquez-Gomez et al. 2017), "ort" (the ORT paper) or "view_sampling"
     #: (Santos et al. 2020 + IK);
     #: baselines: "view_circle" (a fixed circle of views around W_box) or "random_views"
-    #: (the first random view that looks at W_box and can be reached; no ranking)
+    #: (the first random view that looks at W_box and can be reached; no ranking);
+    #: "oracle": the greedy oracle, which knows the true object (planning/oracle.py)
     strategy: str = "random_sampling"
     view_poses: int = 60  #: view_sampling: poses per iteration, spread over the clusters
     #: view_circle: views evenly spaced on a horizontal circle around W_box's centre, each
@@ -251,6 +252,10 @@ class MissionConfig:
     #: view_tolerance_rad of the planned view, else the camera is re-aimed (correction) or,
     #: when the frame cannot be registered, a re-localisation view is taken (recovery); after
     #: max_recoveries such frames the next frame is the scan as it is
+    #: report the coverage ceiling (planning/oracle.py: the share of the ground truth any
+    #: reachable pose can see; computed once per object, pose, scene and sensor, then cached)
+    #: and coverage / ceiling in summary.json
+    coverage_ceiling: bool = True
     verify_views: bool = False
     view_tolerance_m: float = 0.03
     view_tolerance_rad: float = 0.05
@@ -435,9 +440,9 @@ def validate(sc: Scenario) -> Scenario:
         nvox *= math.ceil((e + 2 * m.margin) / m.voxel_size)
     _require(nvox <= 20_000_000, f"map too large: {nvox} voxels (raise mapper.voxel_size)")
 
-    _require(p.strategy in ("random_sampling", "ort", "view_sampling", "view_circle", "random_views"),
+    _require(p.strategy in ("random_sampling", "ort", "view_sampling", "view_circle", "random_views", "oracle"),
              "planner.strategy must be one of random_sampling, ort, view_sampling, view_circle, random_views, "
-             f"got {p.strategy!r}")
+             f"oracle, got {p.strategy!r}")
     _require(p.circle_views >= 2, f"planner.circle_views must be >= 2, got {p.circle_views}")
     _require(_finite(p.circle_range) and p.circle_range >= 0,
              f"planner.circle_range must be 0 (automatic) or > 0 (m), got {p.circle_range}")

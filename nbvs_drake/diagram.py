@@ -89,7 +89,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     scene_graph, plant, to_pose = add_robot_and_scene(builder, sc, str(obj_path))
 
     truth_model = CollisionModel(sc, kin, object_obj=str(obj_path))
-    planner_impl = make_planner(sc, kin)
+    planner_impl = make_planner(sc, kin, truth_mesh=mesh)
 
     kplant = builder.AddNamedSystem("kinematic_plant", KinematicPlant(kin, q0, dt))
     ctrl = builder.AddNamedSystem("noisy_velocity_controller", NoisyVelocityController(sc.noise, sc.seed, dt))

@@ -132,10 +132,15 @@ def fuse_tsdf(scans, intr: tuple, box_min, box_max, voxel: float = 0.003, trunc:
     K = o3c.Tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], o3c.float64)
     color = o3d.t.geometry.Image(o3c.Tensor(np.zeros((int(h), int(w), 3), np.float32)))
     for X_WC, depth in scans:
+        if not np.any((depth > 0) & (depth < z_far)):
+            continue  # nothing of the object region in view
         d = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, np.float32)[:, :, None]))
         ext = o3c.Tensor(np.linalg.inv(np.asarray(X_WC, float)), o3c.float64)
-        blocks = vbg.compute_unique_block_coordinates(d, K, ext, depth_scale=1.0, depth_max=z_far,
-                                                      trunc_voxel_multiplier=trunc / voxel)
+        try:
+            blocks = vbg.compute_unique_block_coordinates(d, K, ext, depth_scale=1.0, depth_max=z_far,
+                                                          trunc_voxel_multiplier=trunc / voxel)
+        except RuntimeError:  # Open3D: "No block is touched"
+            continue
         if blocks.shape[0] == 0:
             continue
         vbg.integrate(blocks, d, color, K, K, ext, depth_scale=1.0, depth_max=z_far,

@@ -176,7 +176,7 @@ def test_baselines_with_the_expected_utility_as_a_feasibility_check(kin, first_s
 
 @pytest.mark.parametrize("setting, message", [
     ("planner.strategy=nearest", "planner.strategy must be one of random_sampling, ort, view_sampling, "
-                                 "view_circle, random_views, got 'nearest'"),
+                                 "view_circle, random_views, oracle, got 'nearest'"),
     ("planner.circle_views=1", "planner.circle_views must be >= 2"),
     ("planner.circle_range=-0.5", "planner.circle_range must be 0 (automatic) or > 0"),
     ("planner.circle_height=0.3", "planner.circle_height must be 0 (automatic) or above the table top"),

@@ -9,11 +9,12 @@ from __future__ import annotations
 from .interface import Planner, PlanRequest, PlanResult  # noqa: F401
 
 
-def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True) -> "Planner":
+def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True, truth_mesh=None) -> "Planner":
     """The strategy the scenario selects (planner.strategy), with the utility it selects
     (planner.utility). wbox_model: an existing CollisionModel of the known environment with
     W_box (built when None and needed). bulk_checks False: paths are checked as before the bulk
-    kernels (`nbvs bench planning`'s baseline)."""
+    kernels (`nbvs bench planning`'s baseline). truth_mesh: the true object (world frame) for
+    the greedy oracle (planner.strategy "oracle"; built from the scenario when None)."""
     from .candidates import StateSampler
     from .motion_planner import MotionPlanner, PlanningObstacles
     from .utility import make_utility
@@ -29,6 +30,10 @@ def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True) -> "Planner
     if p.strategy in ("view_circle", "random_views"):
         from .baselines import make_baseline
         return make_baseline(sc, kin, sampler, evaluator, obstacles, motion, utility, overlap_h)
+    if p.strategy == "oracle":  # the greedy oracle: it knows the true object (truth_mesh)
+        from ..objects import build_object
+        from .oracle import OraclePlanner
+        return OraclePlanner(sc, kin, sampler, obstacles, motion, truth_mesh or build_object(sc))
     if p.strategy == "ort":
         from .ort import ORTPlanner
         return ORTPlanner(sc, sampler, evaluator, obstacles, motion, utility, overlap_h)

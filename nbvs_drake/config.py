@@ -257,6 +257,10 @@ class MissionConfig:
     #: and coverage / ceiling in summary.json
     coverage_ceiling: bool = True
     verify_views: bool = False
+    #: with verify_views and motion noise: a plan's path is executed in legs, each ending after
+    #: a drive that more base motion follows, with a localisation frame at each leg's end; the
+    #: expected utility's rollouts start each leg from its (re-localised) start
+    legs: bool = False
     view_tolerance_m: float = 0.03
     view_tolerance_rad: float = 0.05
     max_recoveries: int = 3

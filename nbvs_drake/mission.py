@@ -61,9 +61,13 @@ def recovery_counts(records: list[dict]) -> dict:
     """mission.verify_views: localisation frames taken before the sensing scans, and of them
     those answered by a correction (`corrections`) and by a re-localisation view (`recoveries`)."""
     frames = [f for r in records for f in r["scan"].get("frames") or []]
-    return {"localisation_frames": len(frames),
-            "corrections": sum(1 for f in frames if f.get("check") == "correct"),
-            "recoveries": sum(1 for f in frames if f.get("check") == "relocalise")}
+    out = {"localisation_frames": len(frames),
+           "corrections": sum(1 for f in frames if f.get("check") == "correct" and f.get("purpose") != "leg"),
+           "recoveries": sum(1 for f in frames if f.get("check") == "relocalise")}
+    legs = sum(1 for f in frames if f.get("purpose") == "leg")
+    if legs:  # mission.legs: frames at the end of a leg
+        out["leg_frames"] = legs
+    return out
 
 
 def prediction_summary(records: list[dict]) -> dict:

@@ -133,6 +133,21 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
     return np.sum(np.where(active, lp, 0.0), axis=-1)
 
 
+def leg_ends(controls: np.ndarray) -> list[int]:
+    """The legs of a plan (mission.legs): the end index (exclusive, into the controls) of
+    each, one after every drive phase (v != 0) that more base motion follows, and the last
+    at m. A plan with one drive, or none, is one leg unless a turn follows its drive."""
+    c = np.asarray(controls, float).reshape(-1, NU)
+    m = len(c)
+    drive = c[:, 0] != 0.0
+    base = drive | (c[:, 1] != 0.0)
+    later = np.zeros(m, bool)  # base motion after step i
+    if m:
+        later[:-1] = np.cumsum(base[::-1])[::-1][1:] > 0
+    ends = [i + 1 for i in range(m - 1) if drive[i] and not drive[i + 1] and later[i]]
+    return ends + [m]
+
+
 # --------------------------------------------------------------------------------------
 # Steering
 # --------------------------------------------------------------------------------------

@@ -153,3 +153,44 @@ def test_the_planner_answers_a_localisation_frame(kin, first_scan_map, check):
     assert tau.plan_id == 5 and tau.purpose == "relocalise" and np.array_equal(tau.target, target)
     assert np.array_equal(tau.states[-1][:3], q0[:3]) and not np.any(tau.controls[:, :2])
     assert new.report.scan == mem.report.scan and new.answered_frame == 2
+
+
+def test_legs_end_after_each_drive_that_more_base_motion_follows():
+    from nbvs_drake.config import RobotConfig
+    from nbvs_drake.motion import leg_ends, rollout, steer
+    rc = RobotConfig()
+    q0 = np.array([-1.3, 0, 0, 0, 0.3, -0.3, -0.2, 0])
+    q1 = np.array([0.9, 1.0, 2.0, 0.5, 0.3, -0.3, -0.2, 0])
+    kind, c = steer(q0, q1, rc)[0]
+    ends = leg_ends(c)
+    assert len(ends) == 2 and ends[-1] == len(c)
+    s = rollout(q0, c, rc.control_dt)
+    # the first leg ends where the drive does: the base stands at the drive's end, the last turn is left
+    assert c[ends[0] - 1, 0] != 0 and c[ends[0], 0] == 0 and np.any(c[ends[0]:, 1] != 0)
+    assert np.hypot(*(s[ends[0], :2] - q1[:2])) < 1e-9
+    # no turn after the drive (the goal faces the way the base drives): one leg
+    q2 = q1.copy()
+    q2[2] = np.arctan2(q1[1] - q0[1], q1[0] - q0[0])
+    assert leg_ends(steer(q0, q2, rc)[0][1]) == [len(steer(q0, q2, rc)[0][1])]
+    assert leg_ends(np.zeros((0, 7))) == [0]
+
+
+def test_the_expected_utility_in_legs_restarts_each_leg_from_its_nominal_start(first_scan_map, kin):
+    """With legs, a candidate's rollouts drift over one leg only: at Table 4's noise a long
+    plan that is unfeasible as a whole (its rollouts reach the table) can be feasible in legs,
+    never the other way round; the value is the last leg's."""
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.interface import PlanRequest
+    _, omap = first_scan_map
+    base = ["planner.n_candidates=400", "planner.eu_samples=100", "mission.verify_views=true",
+            "planner.motion_planner=roadmap"]
+    q0 = np.array(load_scenario("teapot_eu_mu").robot.start, float)
+    out = {}
+    for legs in (False, True):
+        sc = load_scenario("teapot_eu_mu", settings=base + [f"mission.legs={str(legs).lower()}"])
+        planner = make_planner(sc, kin)
+        assert planner.utility.uses_legs() == legs
+        res = planner.plan(PlanRequest(omap, q0, np.random.default_rng(2)))
+        out[legs] = res.stages
+    assert out[True]["with_path"] == out[False]["with_path"]  # the same candidates and paths
+    assert out[True]["eu_feasible"] >= out[False]["eu_feasible"]

@@ -182,6 +182,14 @@ class Recovery:
         return PlanResult("ok", np.asarray(q_target, float), found[1], found[2], found[0],
                           factors={"purpose": "view"})
 
+    def leg(self, omap, q_now: np.ndarray, q_end: np.ndarray) -> PlanResult:
+        """The next leg (mission.legs): the shortest free steering path from the corrected
+        belief to the leg's planned end (purpose "leg"), or status "no_path"."""
+        found = self._direct(q_now, q_end, self.obstacles.for_map(omap))
+        if found is None:
+            return PlanResult("no_path")
+        return PlanResult("ok", np.asarray(q_end, float), found[1], found[2], found[0], factors={"purpose": "leg"})
+
     def relocalise(self, omap, q_now: np.ndarray, cov: np.ndarray, rng: np.random.Generator,
                    n: int = 400) -> PlanResult:
         """A re-localisation view from where the robot believes it is: the arm-only

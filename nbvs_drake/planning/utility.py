@@ -20,6 +20,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
+from ..motion import leg_ends
 from . import bulk
 from .clearance import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
@@ -88,13 +89,46 @@ class ExpectedUtilityScore:
         return lambda s, steps: bulk.rollout_verdicts(np.ascontiguousarray(s, float), nominal[steps - 1],
                                                       c[steps - 1], r[steps - 1], *cert.model, col.counter)
 
+    def uses_legs(self) -> bool:
+        """mission.legs with verified views under motion noise: plans run in legs."""
+        mi, n = self.sc.mission, self.sc.noise
+        return bool(mi.legs and mi.verify_views and (n.sigma_v > 0 or n.sigma_w > 0 or any(n.sigma_arm)))
+
     def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
-        """Algorithm 1 for one candidate."""
+        """Algorithm 1 for one candidate. With legs (`uses_legs`, motion.leg_ends) each leg's
+        rollouts start from its nominal start (the first from the belief and its spread, the
+        others re-localised by the frame at the previous leg's end); the candidate is feasible
+        when every leg is, and its value is the last leg's."""
+        p = self.sc.planner
+        omap = request.omap
+        if self.sc.mission.verify_views:
+            final_utility = self._verified_utility(request, cand)
+        else:
+            def final_utility(s):
+                return self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration)
+        ends = leg_ends(cand.controls) if self.uses_legs() else [len(cand.controls)]
+        start, checked, collided, eu = 0, 0, 0, None
+        for j, end in enumerate(ends):
+            last = j == len(ends) - 1
+            eu = self._expected_leg(request, cand.controls[start:end], cand.states[start:end + 1], obstacles,
+                                    request.start_cov if j == 0 else None,
+                                    final_utility if last else (lambda s: np.ones(len(s))), escape=j == 0)
+            checked, collided = checked + eu.rollouts_checked, collided + eu.collided_rollouts
+            if not eu.feasible or last:
+                break
+            start = end
+        eu.rollouts_checked, eu.collided_rollouts = checked, collided
+        return eu
+
+    def _expected_leg(self, request: PlanRequest, controls: np.ndarray, states: np.ndarray, obstacles: ObstacleModel,
+                      start_cov, final_utility, escape: bool = True):
+        """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
+        states (m+1, 8)."""
         p = self.sc.planner
         # the nominal path's escape from a colliding start
-        skip = self.motion.escape_prefix(cand.states, obstacles) or 0
-        verdicts = self._rollout_verdicts(cand.states[1:], obstacles)
-        m = len(cand.controls)
+        skip = (self.motion.escape_prefix(states, obstacles) or 0) if escape else 0
+        verdicts = self._rollout_verdicts(states[1:], obstacles)
+        m = len(controls)
 
         def block_free(s, steps):  # s: rollouts x steps (1..m) of the plan
             t = time.perf_counter()
@@ -110,16 +144,10 @@ class ExpectedUtilityScore:
 
         def free(s):  # rows: rollouts x states 1..m
             return block_free(np.asarray(s, float).reshape(-1, m, 8), np.arange(1, m + 1)).reshape(-1)
-        omap = request.omap
-        if self.sc.mission.verify_views:
-            final_utility = self._verified_utility(request, cand)
-        else:
-            def final_utility(s):
-                return self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration)
         return expected_utility(
-            request.q_start, cand.controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, request.rng,
+            states[0], controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, request.rng,
             free, final_utility,
-            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=request.start_cov,
+            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=start_cov,
             block_free=block_free if self.motion.bulk_checks else None)
 
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):

@@ -169,7 +169,8 @@ class Localisation(LeafSystem):
                 else:
                     pending = prior
                     integrate = not self.sc.mission.skip_unregistered_scans
-                check = self._verify(tau, icp, corr.apply_state(mem.belief.state), len(mem.frames))
+                check = self._verify(tau, icp, corr.apply_state(mem.belief.state),
+                                     sum(1 for f in mem.frames if f.get("purpose") != "leg"))
         t_register = time.perf_counter() - t1
         model = mem.model
         if integrate and (not check or icp.applied):
@@ -195,11 +196,12 @@ class Localisation(LeafSystem):
         the sensing scan), "relocalise" (not registered) or "correct" (registered, but the
         corrected camera is off tau's target view)."""
         mi = self.sc.mission
-        if not mi.verify_views or tau.purpose == "correct" or n_frames >= mi.max_recoveries or tau.target is None:
+        if not mi.verify_views or tau.purpose == "correct" or tau.target is None or \
+                (n_frames >= mi.max_recoveries and tau.purpose != "leg"):
             return ""
         if icp is None or not icp.applied:
             return "relocalise"
-        if tau.purpose == "relocalise":
+        if tau.purpose in ("relocalise", "leg"):  # not at the view yet: on to it
             return "correct"
         from ..planning.recovery import camera_error
         d, a = camera_error(self._kin, corrected, tau.target)

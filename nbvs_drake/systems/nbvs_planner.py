@@ -20,13 +20,15 @@ class PlannerMemory:
     """Immutable planner state: the last plan, the scan it answered, the last report."""
 
     def __init__(self, controls: ControlSequence, planned_for_scan: int = 0, report: PlanReport | None = None,
-                 answered_frame: int = 0, target: np.ndarray | None = None):
+                 answered_frame: int = 0, target: np.ndarray | None = None, legs: tuple = ()):
         self.controls = controls
         self.planned_for_scan = planned_for_scan
         self.report = report or PlanReport()
         #: the belief's last frame answered (mission.verify_views) and the view being verified
         self.answered_frame = answered_frame
         self.target = target
+        #: mission.legs: the planned states where the legs still to go end (before the target)
+        self.legs = legs
 
     def __deepcopy__(self, memo):
         return self
@@ -53,7 +55,9 @@ class NBVSPlanner(LeafSystem):
     that asks for a correction (`Belief.check`) is answered by a plan back to the view being
     verified, and one that asks for re-localisation by a re-localisation view; neither
     counts as a plan of the scan budget (the report keeps its scan), and a frame that cannot
-    be answered leaves the next frame to be the scan.
+    be answered leaves the next frame to be the scan. With mission.legs the plan is emitted
+    leg by leg (purpose "leg"): each frame at a leg's end is answered by a steering path from
+    the corrected belief to the next leg's end, the last by the correction to the view.
 
     Input ports:
       - map (abstract OccupancyMap).
@@ -124,11 +128,23 @@ class NBVSPlanner(LeafSystem):
             elif mi.stop_min_utility and res.utility < mi.stop_min_utility:
                 new = PlannerMemory(mem.controls, k, dc.replace(rep, stop_reason="score_below_threshold"))
             else:
-                tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states,
-                                      "view", res.states[-1])
-                new = PlannerMemory(tau, k, dc.replace(rep, plan_id=tau.plan_id, motion_sim_s=tau.m * tau.dt),
-                                    belief.frame, res.states[-1])
+                ends = self._legs(res.controls)
+                first = ends[0]
+                tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls[:first],
+                                      res.states[:first + 1], "leg" if len(ends) > 1 else "view", res.states[-1])
+                rep = dc.replace(rep, plan_id=tau.plan_id, motion_sim_s=len(res.controls) * tau.dt)
+                new = PlannerMemory(tau, k, rep, belief.frame, res.states[-1], tuple(res.states[e] for e in ends[1:-1]))
         state.get_mutable_abstract_state(self._mem).set_value(new)
+
+    def _legs(self, controls) -> list[int]:
+        """Where the plan's legs end (motion.leg_ends) when it runs in legs (mission.legs with
+        verified views under noise), else [m]."""
+        from ..motion import leg_ends
+        mi, n = self.sc.mission, self.sc.noise
+        noisy = n.sigma_v > 0 or n.sigma_w > 0 or any(n.sigma_arm)
+        if self.recovery is None or not (mi.legs and mi.verify_views and noisy):
+            return [len(controls)]
+        return leg_ends(controls)
 
     def _recover(self, mem: PlannerMemory, omap: OccupancyMap, belief: Belief) -> PlannerMemory:
         """The answer to a localisation frame: a correction back to the view being verified or
@@ -137,10 +153,17 @@ class NBVSPlanner(LeafSystem):
         is idle, so the Localisation takes the next plan's end; here none comes, so the view is
         given up and the frame count reaches max_recoveries)."""
         rng = np.random.default_rng([self.sc.seed, 17, belief.frame])
+        legs = mem.legs
         if belief.check == "relocalise":
             res = self.recovery.relocalise(omap, belief.state, belief.covariance, rng)
         else:
-            res = self.recovery.correct(omap, belief.state, mem.target)
+            res = None
+            if legs:  # on to the end of the next leg, from where the frame put the robot
+                res = self.recovery.leg(omap, belief.state, legs[0])
+                legs = legs[1:]
+            if res is None or res.status != "ok":
+                legs = ()
+                res = self.recovery.correct(omap, belief.state, mem.target)
         if res.status != "ok":
             # nothing to execute: an empty plan ends at once where the robot is, and its frame
             # is taken again (counted towards mission.max_recoveries)
@@ -149,7 +172,7 @@ class NBVSPlanner(LeafSystem):
         purpose = res.factors.get("purpose", "view")
         tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states,
                               "relocalise" if purpose == "stay" else purpose, mem.target)
-        return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target)
+        return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target, legs)
 
     def _calc_controls(self, context, output):
         output.set_value(self._mem_of(context).controls)

@@ -194,3 +194,38 @@ def test_the_expected_utility_in_legs_restarts_each_leg_from_its_nominal_start(f
         out[legs] = res.stages
     assert out[True]["with_path"] == out[False]["with_path"]  # the same candidates and paths
     assert out[True]["eu_feasible"] >= out[False]["eu_feasible"]
+
+
+def test_the_planner_sends_the_robot_on_to_the_next_legs_end(kin, first_scan_map):
+    """mission.legs: a frame at a leg's end (check "correct") is answered by a steering path
+    from the corrected belief to the next leg's end (purpose "leg"); when no leg is left, by
+    the correction to the view."""
+    from pydrake.systems.analysis import Simulator
+
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.recovery import Recovery
+    from nbvs_drake.systems.messages import Belief
+    from nbvs_drake.systems.nbvs_planner import NBVSPlanner, PlannerMemory
+    _, omap = first_scan_map
+    sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true", "mission.legs=true"])
+    q0 = np.array(sc.robot.start, float)
+    impl = make_planner(sc, kin)
+    target = q0.copy()
+    target[:3] = [-1.2, -0.9, 0.9]
+    leg_end = q0.copy()
+    leg_end[:3] = [-1.4, -0.5, 0.0]
+    for legs, purpose in (((leg_end,), "leg"), ((), "view")):
+        sysm = NBVSPlanner(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
+        sim = Simulator(sysm)
+        ctx = sim.get_mutable_context()
+        mem = PlannerMemory(ControlSequence(4, 0.1, np.zeros((0, 7)), q0[None], "leg", target), omap.scan_count,
+                            answered_frame=1, target=target, legs=legs)
+        ctx.get_mutable_abstract_state(0).set_value(mem)
+        sysm.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+        sysm.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(Belief(1, q0, q0, np.zeros((3, 3)), 2,
+                                                                             "correct")))
+        sim.AdvanceTo(0.05)
+        new = ctx.get_abstract_state(0).get_value()
+        assert new.controls.plan_id == 5 and new.controls.purpose == purpose and new.legs == ()
+        np.testing.assert_allclose(new.controls.states[-1], leg_end if legs else target, atol=1e-9)
+        assert np.array_equal(new.controls.target, target)

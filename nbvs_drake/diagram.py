@@ -140,7 +140,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     if meshcat is not None:  # live view (nbvs reconstruct --meshcat)
         from .systems.meshcat_map_view import add_meshcat_views
         systems["meshcat_visualizer"], systems["meshcat_map_view"] = add_meshcat_views(
-            builder, meshcat, scene_graph, mapper, planner, kin, OccupancyMap.for_scenario(sc), dt)
+            builder, meshcat, scene_graph, mapper, planner, kin, OccupancyMap.for_scenario(sc), dt, fusion)
     diagram = builder.Build()
     diagram.set_name(f"nbvs_mission_{sc.name}")
     return MissionDiagram(diagram, systems, kin, mesh, gt, plant)

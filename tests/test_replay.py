@@ -46,7 +46,8 @@ def test_replay_html_is_self_contained(live_run):
     assert fetched and set(fetched) == {"data"}
     # the scene: robot, the maps of the three scans, a recording with visibility switches
     decoded = _decoded_commands(html)
-    for path in ("/drake/robot", "/nbvs/map/1/unknown", "/nbvs/map/3/occupied", "/nbvs/plan/1", "/nbvs/wbox"):
+    for path in ("/drake/robot", "/nbvs/map/1/unknown", "/nbvs/map/3/occupied", "/nbvs/plan/1", "/nbvs/wbox",
+                 "/nbvs/model_mesh"):  # the reconstructed surface (model_mesh.ply) at the end
         assert path in decoded, path
     assert "set_animation" in decoded and "visible" in decoded
     assert "/nbvs/collision" not in decoded  # nothing collided
@@ -62,7 +63,7 @@ def _decoded_commands(html: str) -> str:
 def test_live_view_drew_the_scene(live_run):
     _, _, meshcat = live_run
     assert meshcat.HasPath("/drake/robot")  # MeshcatVisualizer
-    for path in ("/nbvs/map/unknown", "/nbvs/map/occupied", "/nbvs/wbox"):  # MeshcatMapView
+    for path in ("/nbvs/map/unknown", "/nbvs/map/occupied", "/nbvs/wbox", "/nbvs/model_mesh"):  # MeshcatMapView
         assert meshcat.HasPath(path), path
 
 

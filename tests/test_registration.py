@@ -211,13 +211,19 @@ def _first_scan_then_plan(sc, r, q0, U, states, first_points):
     return loc, mapper, sim, ctx, pc, status
 
 
-def test_localisation_registers_the_scan_and_corrects_the_belief(renderer):
-    sc, r, s1 = renderer
-    for draw in range(20):  # a noisy draw after which the object is still in view
+def second_scan_in_view(sc, r):
+    """The first noisy draw of `_noisy_second_scan` after which the object is still in view."""
+    for draw in range(20):
         q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, draw, 0.4)
         above = P2[:, 2] > sc.scene.table_height + 0.02
         if np.count_nonzero(above & region_mask(sc, P2, RegistrationConfig())) > 2000:
             break
+    return q0, U, states, qt, qb, P2, Xb
+
+
+def test_localisation_registers_the_scan_and_corrects_the_belief(renderer):
+    sc, r, s1 = renderer
+    q0, U, states, qt, qb, P2, Xb = second_scan_in_view(sc, r)
     loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
     mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
     m1 = mapper.GetOutputPort("map").Eval(mctx)

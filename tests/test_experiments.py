@@ -490,3 +490,31 @@ def test_the_local_ray_cluster_refuses_a_client_without_its_token(tmp_path):
             os.environ.pop("RAY_AUTH_MODE", None)
         else:
             os.environ["RAY_AUTH_MODE"] = old
+
+
+def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
+    """SIGINT to the batch's process group (Ctrl-C in a terminal) while its second run is under
+    way: one line naming the folder with the finished run, no traceback, exit code 130; the
+    finished run stays."""
+    y = tmp_path / "tiny.yaml"
+    y.write_text(TINY)
+    out = tmp_path / "x"
+    runs = out / "tiny" / "runs"
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
+                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        partial = list(runs.glob("*.partial-*")) if runs.exists() else []
+        if _snapshot(runs) and partial:
+            break
+        assert proc.poll() is None, "the batch ended before it could be interrupted"
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    lines = [ln for ln in err.splitlines() if ln.startswith("nbvs:")]
+    assert lines == [f"nbvs: interrupted: 1 of 2 runs of tiny are finished in {runs}; the same command goes on "
+                     "from there (`--table-only` writes their table)"], err
+    assert "Traceback" not in err
+    assert list(_snapshot(runs)) == ["0.3_s1"]

@@ -14,10 +14,10 @@ PACKAGE = Path(nbvs_drake.__file__).resolve().parent
 LAYERS = [
     ("foundation", ["errors", "files", "state", "resources", "config"]),
     ("models", ["motion", "sensor", "scene", "robot", "objects", "evaluation", "pose", "registration",
-                "mapping"]),
+                "mapping", "reconstruction"]),
     ("planning and outputs", ["planning", "plots", "meshcat_draw", "replay", "screenshot", "visual_outputs"]),
     ("systems", ["systems"]),
-    ("mission", ["diagram", "scanning", "diagnostics", "wiring", "mission", "bench"]),
+    ("mission", ["diagram", "scanning", "diagnostics", "wiring", "mission", "bench", "warmup"]),
     ("api", ["api", "experiments"]),
     ("cli", ["cli", ""]),  # "": the package itself (nbvs_drake/__init__.py)
 ]

@@ -1,9 +1,6 @@
-"""Compiles the numba kernels into numba's on-disk cache, so that the first run of a fresh
-install does not wait for them (`make setup` runs `python -m nbvs_drake.planning.warmup`):
-the motion planner's (planning/bulk.py, planning/clearance.py), each called once with the
-types a mission gives it, then everything else a mission calls (scan integration, view
-evaluation, coverage) by a two-scan run of the default scenario, which also puts the default
-object's coverage ceiling into its cache (planning/oracle.py)."""
+"""Compiles the motion planner's numba kernels (planning/bulk.py, planning/clearance.py) into
+numba's on-disk cache, each called once with the types a mission gives it
+(`nbvs_drake.warmup`, which `make setup` runs, calls it and then a two-scan run)."""
 
 from __future__ import annotations
 
@@ -40,19 +37,5 @@ def warm_kernels() -> float:
     return time.perf_counter() - t
 
 
-def warm_run() -> float:
-    """A two-scan run of the default scenario into a temporary folder; returns its seconds."""
-    import tempfile
-
-    from ..config import load_scenario
-    from ..mission import run_mission
-    t = time.perf_counter()
-    sc = load_scenario(settings=["mission.max_scans=2", "planner.n_candidates=300"])
-    with tempfile.TemporaryDirectory() as tmp:
-        run_mission(sc, tmp, verbose=False)
-    return time.perf_counter() - t
-
-
 if __name__ == "__main__":
-    print(f"warmup: the motion planner's numba kernels compiled in {warm_kernels():.1f} s", flush=True)
-    print(f"warmup: a two-scan run (the other kernels, the default object's ceiling) in {warm_run():.1f} s")
+    print(f"warmup: the motion planner's numba kernels compiled in {warm_kernels():.1f} s")

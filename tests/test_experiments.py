@@ -484,6 +484,14 @@ def test_the_local_ray_cluster_refuses_a_client_without_its_token(tmp_path):
         env = dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN="not-the-token", RAY_USAGE_STATS_ENABLED="0")
         p = subprocess.run([sys.executable, "-c", code, gcs], env=env, capture_output=True, text=True, timeout=120)
         assert p.returncode == 3 and "REFUSED" in p.stdout, p.stdout + p.stderr
+        # the runner pointed at it with the wrong token: one line naming the address, no traceback
+        p = subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "experiment", "objects", "--quick", "--executor",
+                            "ray", "--address", gcs, "--out", str(tmp_path / "x")], env=env, capture_output=True,
+                           text=True, timeout=180)
+        lines = [ln for ln in p.stderr.splitlines() if ln.startswith("nbvs:")]
+        assert p.returncode == 2 and len(lines) == 1, p.stderr[-2000:]
+        assert f"the Ray cluster at {gcs}" in lines[0] and "token" in lines[0], lines[0]
+        assert "Traceback" not in p.stderr and "InvalidAuthToken" not in p.stderr
     finally:
         ex.close()
         if old is None:

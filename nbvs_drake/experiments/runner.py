@@ -291,7 +291,10 @@ class RayExecutor:
         if self.address:
             _probe_ray_address(self.address)
             try:
-                ray.init(address=self.address, runtime_env=env, log_to_driver=False)
+                # Ray's C++ client writes every refused attempt (a token it does not accept) to
+                # stderr for a minute: that goes to a file, the one line below says what happened
+                with _stderr_to_file():
+                    ray.init(address=self.address, runtime_env=env, log_to_driver=False)
             except Exception as e:  # noqa: BLE001 - ConnectionError, AuthenticationError, RuntimeError
                 msg = " ".join(str(e).split())[:300]
                 if "uthenticat" in type(e).__name__ + msg or "token" in msg.lower():
@@ -300,8 +303,10 @@ class RayExecutor:
                         "a cluster with token authentication needs its token: RAY_AUTH_TOKEN=... or "
                         "RAY_AUTH_TOKEN_PATH=FILE (or ~/.ray/auth_token, from `ray get-auth-token` on the "
                         "head node)") from None
+                hint = ("; if it runs with token authentication, the token given (RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH "
+                        "or ~/.ray/auth_token) is not its own" if os.environ.get("RAY_AUTH_MODE") == "token" else "")
                 raise ExperimentError(f"cannot connect to the Ray cluster at {self.address} "
-                                      f"({type(e).__name__}: {msg})") from None
+                                      f"({type(e).__name__}: {msg}){hint}") from None
         else:
             ray.init(num_cpus=self.jobs, include_dashboard=False, runtime_env=env, log_to_driver=False,
                      object_store_memory=200 * 1024 ** 2)
@@ -346,6 +351,26 @@ class RayExecutor:
             import ray
             ray.shutdown()
             self._started = False
+
+
+class _stderr_to_file:
+    """Redirects file descriptor 2 (C++ libraries' stderr too) into a temporary file for the
+    `with` block; its content is dropped."""
+
+    def __enter__(self):
+        import tempfile
+        sys.stderr.flush()
+        self._saved = os.dup(2)
+        self._file = tempfile.TemporaryFile()
+        os.dup2(self._file.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc):
+        sys.stderr.flush()
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._file.close()
+        return False
 
 
 def _ray_token_at_hand() -> bool:

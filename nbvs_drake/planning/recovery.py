@@ -152,13 +152,32 @@ class Recovery:
         self.obstacles = obstacles
         self._center = 0.5 * (np.asarray(sc.scene.bbox_min, float) + np.asarray(sc.scene.bbox_max, float))
 
+    #: the pose error a registered belief may still have (m, rad): a recovery path must stay
+    #: free with its base moved by this much either way (`_direct`)
+    margin_m: float = 0.02
+    margin_rad: float = 0.02
+
     def _direct(self, q0, q1, obs):
-        """The first free steering sequence from q0 to q1 as (kind, controls, states), or None."""
+        """The first steering sequence from q0 to q1 that is free, also with the whole path's
+        base shifted by +-margin_m in x and y and turned by +-margin_rad about its own
+        centre: a recovery path is not scored by the expected utility, and the belief it
+        starts from is only as good as the registration (~1 cm). (kind, controls, states) or None."""
         for kind, controls in steer(q0, q1, self.sc.robot):
             states = rollout(q0, controls, self.sc.robot.control_dt)
-            if self.motion.path_free(states, obs):
+            if self.motion.path_free(states, obs) and self.motion.paths_free(self._shifted(states), obs).all():
                 return kind, controls, states
         return None
+
+    def _shifted(self, states: np.ndarray) -> list[np.ndarray]:
+        out = []
+        for dx, dy, dth in ((self.margin_m, 0, 0), (-self.margin_m, 0, 0), (0, self.margin_m, 0),
+                            (0, -self.margin_m, 0), (0, 0, self.margin_rad), (0, 0, -self.margin_rad)):
+            s = np.array(states, float)
+            s[:, 0] += dx
+            s[:, 1] += dy
+            s[:, 2] += dth
+            out.append(s)
+        return out
 
     def correct(self, omap, q_now: np.ndarray, q_target: np.ndarray) -> PlanResult:
         """Back to the planned view from the corrected belief: the arm alone when that puts the

@@ -133,6 +133,12 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
     return np.sum(np.where(active, lp, 0.0), axis=-1)
 
 
+def plans_in_legs(sc) -> bool:
+    """Whether plans run in legs: mission.legs with verified views under motion noise."""
+    mi = sc.mission
+    return bool(mi.legs and mi.verify_views and np.any(noise_sigmas(sc.noise) > 0))
+
+
 def leg_ends(controls: np.ndarray) -> list[int]:
     """The legs of a plan (mission.legs): the end index (exclusive, into the controls) of
     each, one after every drive phase (v != 0) that more base motion follows, and the last

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import leg_ends
+from ..motion import leg_ends, plans_in_legs
 from . import bulk
 from .clearance import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
@@ -99,8 +99,7 @@ class ExpectedUtilityScore:
 
     def uses_legs(self) -> bool:
         """mission.legs with verified views under motion noise: plans run in legs."""
-        mi, n = self.sc.mission, self.sc.noise
-        return bool(mi.legs and mi.verify_views and (n.sigma_v > 0 or n.sigma_w > 0 or any(n.sigma_arm)))
+        return plans_in_legs(self.sc)
 
     def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
         """Algorithm 1 for one candidate. With legs (`uses_legs`, motion.leg_ends) each leg's

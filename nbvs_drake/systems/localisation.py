@@ -155,7 +155,8 @@ class Localisation(LeafSystem):
         check = ""
         if self.sc.mission.relocalization == "icp" and mem.belief.scan > 0:
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
-                                           np.random.default_rng([self.sc.seed, 13, k, len(mem.frames)]))
+                                           np.random.default_rng([self.sc.seed, 13, k] + (
+                                               [len(mem.frames)] if mem.frames else [])))
             if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 omap: OccupancyMap = self._map.Eval(context)
                 icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,

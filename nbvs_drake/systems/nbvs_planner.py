@@ -139,10 +139,8 @@ class NBVSPlanner(LeafSystem):
     def _legs(self, controls) -> list[int]:
         """Where the plan's legs end (motion.leg_ends) when it runs in legs (mission.legs with
         verified views under noise), else [m]."""
-        from ..motion import leg_ends
-        mi, n = self.sc.mission, self.sc.noise
-        noisy = n.sigma_v > 0 or n.sigma_w > 0 or any(n.sigma_arm)
-        if self.recovery is None or not (mi.legs and mi.verify_views and noisy):
+        from ..motion import leg_ends, plans_in_legs
+        if self.recovery is None or not plans_in_legs(self.sc):
             return [len(controls)]
         return leg_ends(controls)
 

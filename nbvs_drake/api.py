@@ -122,11 +122,15 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     sc = _resolve_scenario(scenario, seed, tuple(overrides))
     out = Path(out) if out is not None else Path("results") / sc.name
     _prepare_output(out, overwrite)
+    from .errors import InterruptGuard, Interrupted
     from .mission import run_mission
+    guard = InterruptGuard()
     try:
-        run_mission(sc, out, verbose=verbose, meshcat=meshcat)
-    except KeyboardInterrupt:
-        from .errors import Interrupted
+        with guard:
+            run_mission(sc, out, verbose=verbose, meshcat=meshcat)
+    except BaseException as e:
+        if not guard.was_interrupt(e):
+            raise
         raise Interrupted(f"interrupted: the finished iterations are in {out / 'iterations.jsonl'} "
                           f"(the scenario in {out / 'scenario.yaml'}; no summary.json)") from None
     return RunResult.load(out)

@@ -23,6 +23,11 @@ def _only(specs: list[str]) -> dict:
 
 def _cmd_reconstruct(args):
     from .api import reconstruct
+    if args.quiet:  # Drake's INFO lines (context parallelism, the replay's own Meshcat) too
+        import logging
+
+        import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
+        logging.getLogger("drake").setLevel(logging.WARNING)
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat, MeshcatParams

@@ -19,3 +19,40 @@ class RunExistsError(NbvsError):
 
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C during a run or a batch, with a line that says where what was finished is."""
+
+
+class InterruptGuard:
+    """Knows whether Ctrl-C arrived while it was active, whatever became of the KeyboardInterrupt.
+
+    A SIGINT that lands inside an import of a compiled module (Open3D, Drake) or a callback from
+    C++ can surface as another exception (`ImportError: initialization failed`). Inside
+    `with InterruptGuard() as g:` the SIGINT handler notes the signal before it raises
+    KeyboardInterrupt, so that `g.interrupted` tells the caller to report an interruption and
+    not the exception it turned into. It installs itself only in the main thread and only over
+    Python's default handler (a caller's own handler is left alone)."""
+
+    def __init__(self):
+        self.interrupted = False
+        self._old = None
+
+    def _on_sigint(self, signum, frame):
+        self.interrupted = True
+        raise KeyboardInterrupt
+
+    def __enter__(self):
+        import signal
+        import threading
+        if threading.current_thread() is threading.main_thread() and \
+                signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            self._old = signal.signal(signal.SIGINT, self._on_sigint)
+        return self
+
+    def __exit__(self, *exc):
+        if self._old is not None:
+            import signal
+            signal.signal(signal.SIGINT, self._old)
+        return False
+
+    def was_interrupt(self, exc: BaseException) -> bool:
+        """Whether `exc` is Ctrl-C, or what Ctrl-C turned into."""
+        return isinstance(exc, KeyboardInterrupt) or self.interrupted

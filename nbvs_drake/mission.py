@@ -85,6 +85,9 @@ def prediction_summary(records: list[dict]) -> dict:
 
 def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat=None) -> dict:
     """`meshcat`: a pydrake Meshcat that shows the run live (robot, map, plans), or None."""
+    # Open3D (registration, surface fusion) before the first scan: a Ctrl-C that lands in its
+    # import mid-run leaves it half initialised, and it then exits with status 1 at shutdown
+    import open3d  # noqa: F401
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import EventStatus
 

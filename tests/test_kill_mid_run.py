@@ -52,7 +52,9 @@ def test_ctrl_c_says_where_the_finished_iterations_are(tmp_path):
         time.sleep(0.2)
     os.kill(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130
+    # 130, or killed by SIGINT itself (-2): CPython re-raises the signal at exit when the
+    # Ctrl-C landed in code a compiled module ran through PyRun_* (e.g. during Open3D's import)
+    assert proc.returncode in (130, -signal.SIGINT), err
     lines = [ln for ln in err.splitlines() if ln.startswith("nbvs:")]
     assert lines == [f"nbvs: interrupted: the finished iterations are in {log} "
                      f"(the scenario in {out / 'scenario.yaml'}; no summary.json)"], err

@@ -610,10 +610,14 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             batch.bar = tqdm(total=len(specs), initial=len(skipped) + len(failed_before), unit="run",
                              desc=r["name"], file=sys.stderr, dynamic_ncols=True, smoothing=0)
             batch.bar.set_postfix(failed=len(failed_before))
+        from ..errors import InterruptGuard, Interrupted
+        guard = InterruptGuard()
         try:
-            ex.run(batch, todo)
-        except KeyboardInterrupt:
-            from ..errors import Interrupted
+            with guard:
+                ex.run(batch, todo)
+        except BaseException as e:
+            if not guard.was_interrupt(e):
+                raise
             n = sum(1 for sp in specs if (batch.final(sp) / "summary.json").is_file())
             raise Interrupted(f"interrupted: {n} of {len(specs)} runs of {r['name']} are finished in "
                               f"{exp_dir / 'runs'}" + (f" and recorded in {batch.records}" if batch.records else "")

@@ -122,7 +122,7 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     sc = _resolve_scenario(scenario, seed, tuple(overrides))
     out = Path(out) if out is not None else Path("results") / sc.name
     _prepare_output(out, overwrite)
-    from .errors import InterruptGuard, Interrupted
+    from .errors import Interrupted, InterruptGuard
     from .mission import run_mission
     guard = InterruptGuard()
     try:

@@ -610,7 +610,7 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
             batch.bar = tqdm(total=len(specs), initial=len(skipped) + len(failed_before), unit="run",
                              desc=r["name"], file=sys.stderr, dynamic_ncols=True, smoothing=0)
             batch.bar.set_postfix(failed=len(failed_before))
-        from ..errors import InterruptGuard, Interrupted
+        from ..errors import Interrupted, InterruptGuard
         guard = InterruptGuard()
         try:
             with guard:

@@ -369,11 +369,14 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
                                     "proved_free": float(proved.mean())}
     sc = load_scenario()
     sc.planner.ort_vertices = ort_vertices
-    sampler = StateSampler(sc, kin)
     times, trees = {}, {}
-    # Drake alone; the certificate with the Python growth (rrt.extend_batch, as before the bulk
-    # kernels); the numba growth (bulk.tree_extensions)
+    # Drake alone; the certificate with the Python growth (rrt.extend_batch) and the targets'
+    # director-ray test in numpy, as before the bulk kernels; the numba growth
+    # (bulk.tree_extensions: clearance margins, only undecided states to Drake) with the numba
+    # director-ray test
     for label, cert, bulk_checks in (("drake", False, False), ("certified", True, False), ("bulk", True, True)):
+        sampler = StateSampler(sc, kin)
+        sampler.numba_director = bulk_checks
         motion = MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks)
         ort = ORTPlanner(sc, sampler, None, None, motion, None, 0.0)
         obstacles = ObstacleModel(CollisionModel(sc, kin, certificate=cert))

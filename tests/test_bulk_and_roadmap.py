@@ -267,3 +267,102 @@ def test_cluttered_room_mission_with_the_roadmap(tmp_path):
     assert s["times_s"]["motion_planning"] > 0 and s["times_s"]["view_evaluation"] > 0
     plans = [r["plan"] for r in res.records if r["plan"].get("status") == "ok"]
     assert plans and all("motion_planning_s" in p["times"] and "eu_checks_s" in p["times"] for p in plans)
+
+
+@pytest.mark.parametrize("world", ["clutter", "voxels"])
+def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
+    """clearance._free_margin: a state with margins (m, m_self) > 0 is FREE by the certificate,
+    and so is every state whose points moved less than m (the motion bound, with the base's turn
+    weighted by the state's radius) and less than m_self relative to each other; near-contact
+    states included."""
+    import numba as nb
+
+    from nbvs_drake.planning.clearance import _arm_motion_bound, _free_margin, _reach, _scratch, unpack
+
+    @nb.njit
+    def margins(q, F, I, H):
+        model = unpack(F, I, H)
+        s = _scratch(model)
+        out = np.empty((q.shape[0], 3))
+        for i in range(q.shape[0]):
+            out[i, 0], out[i, 1], out[i, 2] = _free_margin(q[i], model, s)
+        return out, _reach(model)
+
+    @nb.njit
+    def arm_bound(a, b, reach):
+        return _arm_motion_bound(a, b, reach)
+
+    sc, model = request.getfixturevalue(world)
+    q = random_states(kin, 1500, seed=5)
+    free = drake_free(model, q)
+    q = np.concatenate([q, near_contacts(model, q, free, n_pairs=150, steps=12, both=True)])
+    m, reach = margins(q, *model.certificate.model)
+    ok = (m[:, 0] > 0) & (m[:, 1] > 0)
+    assert ok.mean() > 0.15
+    assert np.all(model.certificate.classify(q[ok]) == FREE)
+    rng = np.random.default_rng(8)
+    moved, checked = [], 0
+    for qi, (me, ms, r) in zip(q[ok], m[ok]):
+        for _ in range(4):  # a random straight move scaled to use up 0.99 of the tighter margin
+            d = rng.normal(0, 1, 8) * np.array([0.05, 0.05, 0.05, 0.1, 0.1, 0.1, 0.1, 0.1])
+            b = qi + d
+            arm = arm_bound(qi, b, reach)
+            total = np.hypot(d[0], d[1]) + (r + arm) * abs(d[2]) + arm
+            f = 0.99 * min(me / total, ms / arm if arm > 0 else np.inf)
+            b = qi + f * d
+            if np.all(kin.arm_within_limits(b)):
+                moved.append(b)
+        checked += 1
+    moved = np.array(moved)
+    assert len(moved) > 500
+    assert np.all(model.certificate.classify(moved) == FREE)
+    assert np.all(drake_free(model, moved))
+
+
+@pytest.mark.parametrize("world", ["clutter", "voxels"])
+def test_skipping_by_margins_gives_the_verdict_of_every_state(kin, world, request):
+    """bulk.path_verdict (states proved free by a neighbour's margin are not visited) against
+    the certificate's verdict of every interpolated state, on steering edges from random and
+    near-contact states; the undecided states it reports are exactly the certificate's UNKNOWN
+    ones."""
+    sc, model = request.getfixturevalue(world)
+    q = random_states(kin, 600, seed=12)
+    free = drake_free(model, q)
+    rng = np.random.default_rng(13)
+    a = np.concatenate([q[free][:150], near_contacts(model, q, free, n_pairs=80, steps=10, both=False)])
+    b = kin.clip_arm(a + rng.normal(0, 0.5, a.shape))
+    seen = set()
+    for x, y in zip(a, b):
+        states = rollout(x, steer_together(x, y, sc.robot), sc.robot.control_dt)
+        if len(states) < 2:
+            continue
+        counter = np.zeros(1, np.int64)
+        v, allq, und = bulk.path_undecided(states, *model.certificate.model, 0.04, bulk.STRIDE, counter)
+        every = model.certificate.classify(allq)
+        if every[0] != FREE:
+            expected = UNKNOWN
+        elif np.any(every == COLLIDING):
+            expected = COLLIDING
+        elif np.any(every == UNKNOWN):
+            expected = UNKNOWN
+        else:
+            expected = FREE
+        assert v == expected
+        if v == UNKNOWN and every[0] == FREE:
+            np.testing.assert_array_equal(und, np.flatnonzero(every == UNKNOWN))
+        if v == FREE:
+            assert counter[0] < len(allq)  # it skipped states
+        seen.add(int(v))
+    assert {FREE, COLLIDING} <= seen
+
+
+def test_the_numba_director_ray_test_is_numpys(kin):
+    """StateSampler.looks_at_wbox in numba against views.director_ray_hits of camera_poses."""
+    from nbvs_drake.planning.views import director_ray_hits
+    for name in ("default", "cluttered_room"):
+        sc = load_scenario(name)
+        s = StateSampler(sc, kin)
+        q = s.sample_states(np.random.default_rng(2), 200_000)
+        expected = director_ray_hits(kin.camera_poses(q), sc.scene.bbox_min, sc.scene.bbox_max, s.z_near, s.z_far)
+        np.testing.assert_array_equal(s.looks_at_wbox(q), expected)
+        assert 0.005 < expected.mean() < 0.1

@@ -31,9 +31,12 @@ from .clearance import (
     EPS,
     FREE,
     UNKNOWN,
+    _arm_motion_bound,
     _classify_one,
+    _free_margin,
     _point_box,
     _pose_robot,
+    _reach,
     _scratch,
     _vertical_cylinder_box,
     _vertical_cylinder_box_overlap,
@@ -87,39 +90,93 @@ def interpolate(states, max_step):
 
 
 @nb.njit(cache=True)
-def _verdict_of_states(allq, model, scratch, stride, counter):
+def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
     """The verdict of a sequence of states (see the module docstring); counter[0] += states
-    classified."""
+    classified. A state proved FREE with a margin (`clearance._free_margin`) also proves FREE
+    every state of the sequence that no point of the robot can reach from it by moving less than
+    the margin (a bound of the motion summed along the sequence): those are not visited,
+    and the verdict is the one of visiting every state. `undecided` (bool (n,), or empty: not
+    wanted): set True at the states found UNKNOWN (all of them when the verdict is UNKNOWN
+    and the first state is FREE)."""
     n = allq.shape[0]
-    counter[0] += 1
-    if _classify_one(allq[0], model, scratch) != FREE:
-        return UNKNOWN
+    reach = _reach(model)
+    # cumulative along the sequence (state 0 to state t): the base's travel, its turn, the arm's
+    # motion bound (any point relative to the base), and the turn weighted by the arm's motion
+    # bound at the end (af) and at the start (ab) of each step
+    xy, th, arm, af, ab = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    for t in range(1, n):
+        a, b = allq[t - 1], allq[t]
+        dth = abs(b[2] - a[2])
+        xy[t] = xy[t - 1] + math.hypot(b[0] - a[0], b[1] - a[1])
+        th[t] = th[t - 1] + dth
+        arm[t] = arm[t - 1] + _arm_motion_bound(a, b, reach)
+        af[t] = af[t - 1] + arm[t] * dth
+        ab[t] = ab[t - 1] + arm[t - 1] * dth
+    done = np.zeros(n, np.bool_)
     unknown = False
-    if n > 1:  # the end state next: most blocked extensions end in an obstacle
-        counter[0] += 1
-        v = _classify_one(allq[n - 1], model, scratch)
-        if v == COLLIDING:
-            return COLLIDING
-        unknown = v == UNKNOWN
-    for phase in range(2):
-        for i in range(1, n - 1):
-            coarse = i % stride == 0
-            if coarse != (phase == 0):
+    for phase in range(4):  # the first state, the last (most blocked extensions end in an
+        # obstacle), every stride-th, the rest
+        for i in range(n):
+            if phase == 0:
+                if i > 0:
+                    break
+            elif phase == 1:
+                if i < n - 1:
+                    continue
+            elif phase == 2:
+                if i % stride != 0:
+                    continue
+            if done[i]:
                 continue
             counter[0] += 1
+            m, ms, r = _free_margin(allq[i], model, scratch)
+            if m > 0.0 and ms > 0.0:
+                # how far a point can get from where it is at state i: the base's travel, its
+                # turn times the point's distance from the base's axis (at most r at state i,
+                # plus the arm's motion since), and the arm's motion
+                done[i] = True
+                j = i + 1
+                while j < n and arm[j] - arm[i] < ms and (xy[j] - xy[i]) + (r - arm[i]) * (th[j] - th[i]) \
+                        + (af[j] - af[i]) + (arm[j] - arm[i]) < m:
+                    done[j] = True
+                    j += 1
+                j = i - 1
+                while j >= 0 and arm[i] - arm[j] < ms and (xy[i] - xy[j]) + (r + arm[i]) * (th[i] - th[j]) \
+                        - (ab[i] - ab[j]) + (arm[i] - arm[j]) < m:
+                    done[j] = True
+                    j -= 1
+                continue
             v = _classify_one(allq[i], model, scratch)
+            done[i] = True
+            if v == FREE:
+                continue
+            if i == 0:
+                return UNKNOWN
             if v == COLLIDING:
                 return COLLIDING
-            if v == UNKNOWN:
-                unknown = True
+            unknown = True
+            if undecided.shape[0]:
+                undecided[i] = True
     return UNKNOWN if unknown else FREE
+
+
+@nb.njit(cache=True)
+def path_undecided(states, F, I, H, max_step, stride, counter):
+    """(verdict, interpolated states, the indices of those the model cannot decide) of a path
+    (`path_verdict`); with verdict UNKNOWN and no index, the first state is undecided."""
+    model = unpack(F, I, H)
+    allq = interpolate(states, max_step)
+    undecided = np.zeros(allq.shape[0], np.bool_)
+    v = _verdict_of_states(allq, model, _scratch(model), stride, counter, undecided)
+    return v, allq, np.flatnonzero(undecided)
 
 
 @nb.njit(cache=True)
 def path_verdict(states, F, I, H, max_step, stride, counter):
     """FREE / COLLIDING / UNKNOWN of a path's states (m+1, 8), interpolated at max_step."""
     model = unpack(F, I, H)
-    return _verdict_of_states(interpolate(states, max_step), model, _scratch(model), stride, counter)
+    return _verdict_of_states(interpolate(states, max_step), model, _scratch(model), stride, counter,
+                              np.zeros(0, np.bool_))
 
 
 @nb.njit(cache=True)
@@ -215,10 +272,11 @@ def edge_verdicts(A, B, F, I, H, rc, max_step, stride, counter):
     model = unpack(F, I, H)
     out = np.empty(A.shape[0], np.int8)
     scratch = _scratch(model)
+    none = np.zeros(0, np.bool_)
     for i in range(A.shape[0]):
         c = steer_together(A[i], B[i], rc[0], rc[1], rc[2], rc[3])
         out[i] = _verdict_of_states(interpolate(rollout(A[i], c, rc[0]), max_step), model, scratch, stride,
-                                    counter)
+                                    counter, none)
     return out
 
 
@@ -373,10 +431,10 @@ def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_ste
     first n vertices Q[:n] as they stand, computed and checked in one call with the same
     arithmetic as rrt._steer_edge and MotionPlanner.path_free: per target the nearest vertex,
     the clipped steering target, the new vertex (the end of the edge's rollout), the verdict
-    FREE / COLLIDING / UNKNOWN (the caller asks the certificate and Drake), or -2 where the
-    target is at the vertex or the steering gives no controls (COLLIDING includes an edge that
-    leaves the arm's limits), and the edge's eq. 8 length (its steps summed in order: equal to
-    `motion.path_length`'s to ~1e-15 relative)."""
+    FREE / COLLIDING / UNKNOWN (`extension_undecided` gives the states to ask Drake about), or
+    -2 where the target is at the vertex or the steering gives no controls (COLLIDING includes
+    an edge that leaves the arm's limits), and the edge's eq. 8 length (its steps summed in
+    order: equal to `motion.path_length`'s to ~1e-15 relative)."""
     B = targets.shape[0]
     near = np.empty(B, np.int64)
     length = np.zeros(B)
@@ -385,45 +443,86 @@ def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_ste
     verdict = np.empty(B, np.int8)
     model = unpack(F, I, H)
     scratch = _scratch(model)
-    d = np.empty(8)
-    sq = np.empty(8)
+    none = np.zeros(0, np.bool_)
     for b in range(B):
-        i = _nearest(Q[:n], targets[b], w)
-        near[b] = i
-        for j in range(8):
-            d[j] = targets[b, j] - Q[i, j]
-        d[2] = _wrap(d[2])
-        for j in range(8):
-            sq[j] = w[j] * d[j] * d[j]
-        dist = math.sqrt(_sum8(sq))
-        if dist < 1e-9:
+        states = _extension_states(Q, n, targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim, length)
+        if states.shape[0] == 0:
             verdict[b] = -2
             continue
-        f = min(1.0, step / dist)
-        for j in range(8):
-            aim[b, j] = Q[i, j] + d[j] * f
-        for j in range(5):
-            aim[b, 3 + j] = min(max(aim[b, 3 + j], arm_lo[j]), arm_hi[j])
-        c = steer_together(Q[i], aim[b], rc[0], rc[1], rc[2], rc[3])
-        if c.shape[0] == 0:
-            verdict[b] = -2
-            continue
-        states = rollout(Q[i], c, rc[0])
         new[b] = states[-1]
-        for t in range(states.shape[0] - 1):  # eq. 8, each step's terms in numpy's order
-            for j in range(8):
-                e = states[t + 1, j] - states[t, j]
-                if j == 2:
-                    e = _wrap(e)
-                sq[j] = w[j] * e * e
-            length[b] += math.sqrt(_sum8(sq))
         inside = True
         for t in range(states.shape[0]):
             for j in range(5):
                 if states[t, 3 + j] < arm_lo[j] - 1e-9 or states[t, 3 + j] > arm_hi[j] + 1e-9:
                     inside = False
-        if not inside:
-            verdict[b] = COLLIDING
-            continue
-        verdict[b] = _verdict_of_states(interpolate(states, max_step), model, scratch, stride, counter)
+        verdict[b] = _verdict_of_states(interpolate(states, max_step), model, scratch, stride, counter, none) \
+            if inside else COLLIDING
     return near, aim, new, verdict, length
+
+
+@nb.njit(cache=True)
+def _extension_states(Q, n, target, w, step, rc, arm_lo, arm_hi, b, near, aim, length):
+    """The rollout states of the extension towards `target` (near[b], aim[b] and length[b]
+    filled in); an empty array where the target is at the vertex or the steering gives no
+    controls."""
+    d = np.empty(8)
+    sq = np.empty(8)
+    i = _nearest(Q[:n], target, w)
+    near[b] = i
+    for j in range(8):
+        d[j] = target[j] - Q[i, j]
+    d[2] = _wrap(d[2])
+    for j in range(8):
+        sq[j] = w[j] * d[j] * d[j]
+    dist = math.sqrt(_sum8(sq))
+    if dist < 1e-9:
+        return np.empty((0, 8))
+    f = min(1.0, step / dist)
+    for j in range(8):
+        aim[b, j] = Q[i, j] + d[j] * f
+    for j in range(5):
+        aim[b, 3 + j] = min(max(aim[b, 3 + j], arm_lo[j]), arm_hi[j])
+    c = steer_together(Q[i], aim[b], rc[0], rc[1], rc[2], rc[3])
+    if c.shape[0] == 0:
+        return np.empty((0, 8))
+    states = rollout(Q[i], c, rc[0])
+    length[b] = 0.0
+    for t in range(states.shape[0] - 1):  # eq. 8, each step's terms in numpy's order
+        for j in range(8):
+            e = states[t + 1, j] - states[t, j]
+            if j == 2:
+                e = _wrap(e)
+            sq[j] = w[j] * e * e
+        length[b] += math.sqrt(_sum8(sq))
+    return states
+
+
+@nb.njit(cache=True)
+def extension_undecided(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter):
+    """For extensions that `tree_extensions` found UNKNOWN (the same arguments, their targets):
+    (first_undecided (K,) bool: the edge's first state is undecided, ask about the whole edge;
+    offsets (K + 1,), states (total, 8): the interpolated states of edge k the model cannot
+    decide are states[offsets[k]:offsets[k + 1]]; the edge is free iff Drake finds them all
+    free)."""
+    K = targets.shape[0]
+    model = unpack(F, I, H)
+    scratch = _scratch(model)
+    near = np.empty(K, np.int64)
+    aim = np.empty((K, 8))
+    length = np.zeros(K)
+    first = np.zeros(K, np.bool_)
+    offsets = np.zeros(K + 1, np.int64)
+    parts = []
+    for k in range(K):
+        allq = interpolate(_extension_states(Q, n, targets[k], w, step, rc, arm_lo, arm_hi, k, near, aim, length),
+                           max_step)
+        und = np.zeros(allq.shape[0], np.bool_)
+        v = _verdict_of_states(allq, model, scratch, stride, counter, und)
+        idx = np.flatnonzero(und)
+        first[k] = v == UNKNOWN and idx.shape[0] == 0
+        parts.append(allq[idx])
+        offsets[k + 1] = offsets[k] + idx.shape[0]
+    out = np.empty((offsets[K], 8))
+    for k in range(K):
+        out[offsets[k]:offsets[k + 1]] = parts[k]
+    return first, offsets, out

@@ -4,8 +4,10 @@ the target stream that grows the Object Reconstruction Tree towards the view spa
 
 from __future__ import annotations
 
+import math
 from typing import Iterator
 
+import numba as nb
 import numpy as np
 
 from ..config import Scenario, resolve_sensor
@@ -25,6 +27,12 @@ class StateSampler:
         s = resolve_sensor(sc.sensor)
         self.z_near = s.z_near
         self.z_far = min(s.z_far, sc.planner.max_view_distance or s.z_far)
+        self._X_PF = np.ascontiguousarray([X for X, _ in kin.joint_fixed], dtype=np.float64)
+        self._axes = np.ascontiguousarray([a / np.linalg.norm(a) for _, a in kin.joint_fixed], dtype=np.float64)
+        self._X_L5C = np.ascontiguousarray(kin.X_L5C, dtype=np.float64)
+        #: False: the director-ray test in numpy (`views.director_ray_hits`; the same verdicts,
+        #: the baseline of `nbvs bench collision`)
+        self.numba_director = True
 
     def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
         lo, hi = self.sc.robot.xy_bounds
@@ -35,9 +43,17 @@ class StateSampler:
         return q
 
     def looks_at_wbox(self, q: np.ndarray) -> np.ndarray:
-        """Whether each state's director ray meets W_box within the working range."""
-        bmin, bmax = self.sc.scene.bbox_min, self.sc.scene.bbox_max
-        return director_ray_hits(self.kin.camera_poses(q), bmin, bmax, self.z_near, self.z_far)
+        """Whether each state's director ray meets W_box within the working range
+        (`views.director_ray_hits` of `kin.camera_poses`, in one numba call: ~20x faster; the
+        candidate generation and the ORT's targets test ~60 states for each one they keep)."""
+        if not self.numba_director:
+            bmin, bmax = self.sc.scene.bbox_min, self.sc.scene.bbox_max
+            return director_ray_hits(self.kin.camera_poses(q), bmin, bmax, self.z_near, self.z_far)
+        q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
+        out = np.empty(len(q), np.bool_)
+        _looks_at_box(q, self._X_PF, self._axes, self._X_L5C, np.asarray(self.sc.scene.bbox_min, float),
+                      np.asarray(self.sc.scene.bbox_max, float), self.z_near, self.z_far, out)
+        return out
 
     def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
         """planner.n_candidates states whose director ray meets W_box (at most
@@ -62,6 +78,57 @@ class StateSampler:
         while True:
             batch = self.sample_states(rng, 4096)
             yield from batch[self.looks_at_wbox(batch)]
+
+
+@nb.njit(cache=True)
+def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, out):
+    """out[n]: the camera's optical axis (+z of X_WB5 @ X_L5C) at state q[n] enters the box
+    [bmin, bmax] before t_far and leaves it after t_near (the slab test of
+    `views.director_ray_hits`, NaN slabs ignored as nanmax / nanmin ignore them). The forward
+    kinematics of `clearance._body_poses_into`, with scalar indexing (no sub-array views)."""
+    A = np.empty((3, 4))  # the rows of the body pose along the chain
+    B = np.empty((3, 4))
+    for n in range(q.shape[0]):
+        c, s = math.cos(q[n, 2]), math.sin(q[n, 2])
+        A[0, 0], A[0, 1], A[0, 2], A[0, 3] = c, -s, 0.0, q[n, 0]
+        A[1, 0], A[1, 1], A[1, 2], A[1, 3] = s, c, 0.0, q[n, 1]
+        A[2, 0], A[2, 1], A[2, 2], A[2, 3] = 0.0, 0.0, 1.0, 0.0
+        for b in range(5):
+            for i in range(3):  # B = A @ X_PF[b]
+                for j in range(4):
+                    B[i, j] = A[i, 0] * X_PF[b, 0, j] + A[i, 1] * X_PF[b, 1, j] + A[i, 2] * X_PF[b, 2, j]
+                B[i, 3] += A[i, 3]
+            k0, k1, k2 = axes[b, 0], axes[b, 1], axes[b, 2]
+            sn, cs = math.sin(q[n, 3 + b]), math.cos(q[n, 3 + b])
+            v = 1.0 - cs
+            r00 = 1.0 + v * (-k2 * k2 - k1 * k1)
+            r01 = -sn * k2 + v * k0 * k1
+            r02 = sn * k1 + v * k0 * k2
+            r10 = sn * k2 + v * k0 * k1
+            r11 = 1.0 + v * (-k2 * k2 - k0 * k0)
+            r12 = -sn * k0 + v * k1 * k2
+            r20 = -sn * k1 + v * k0 * k2
+            r21 = sn * k0 + v * k1 * k2
+            r22 = 1.0 + v * (-k1 * k1 - k0 * k0)
+            for i in range(3):  # A = B @ rot
+                A[i, 0] = B[i, 0] * r00 + B[i, 1] * r10 + B[i, 2] * r20
+                A[i, 1] = B[i, 0] * r01 + B[i, 1] * r11 + B[i, 2] * r21
+                A[i, 2] = B[i, 0] * r02 + B[i, 1] * r12 + B[i, 2] * r22
+                A[i, 3] = (B[i, 0] * 0.0 + B[i, 1] * 0.0 + B[i, 2] * 0.0) + B[i, 3]
+        t0, t1 = -np.inf, np.inf
+        slabs = False
+        for i in range(3):
+            o = A[i, 0] * X_L5C[0, 3] + A[i, 1] * X_L5C[1, 3] + A[i, 2] * X_L5C[2, 3] + A[i, 3]
+            d = A[i, 0] * X_L5C[0, 2] + A[i, 1] * X_L5C[1, 2] + A[i, 2] * X_L5C[2, 2]
+            inv = 1.0 / d if d != 0.0 else math.copysign(np.inf, d)
+            ta = (bmin[i] - o) * inv
+            tb = (bmax[i] - o) * inv
+            if not math.isnan(ta) and not math.isnan(tb):  # else numpy's minimum / maximum are NaN
+                t0 = max(t0, min(ta, tb))
+                t1 = min(t1, max(ta, tb))
+                slabs = True
+        out[n] = slabs and t0 <= t1 and t1 >= t_near and t0 <= t_far
+    return out
 
 
 def free_candidates(generator, obstacles, rng: np.random.Generator, omap: OccupancyMap, stages: dict,

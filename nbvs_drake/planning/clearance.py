@@ -133,6 +133,10 @@ class FreeCertificate:
         qs[:, 3:] = rng.uniform(kin.arm_lower, kin.arm_upper, (16, 5))
         R = np.stack([self.geometry_poses(q)[:, :3, 2] for q in qs])  # (16, G, 3) axes
         self.g_vert = np.array(g_cyl, bool) & np.all(np.abs(R[:, :, 2]) > 1 - 1e-12, axis=0)
+        # ... and keep their height: a chain of turns that keeps an axis vertical turns about
+        # vertical axes only (`_free_margin` relies on it: planar motion leaves their vertical gaps)
+        z = np.stack([self.geometry_poses(q)[:, 2, 3] for q in qs])
+        self.g_vert &= np.ptp(z, axis=0) < 1e-12
         world = plant.world_body()
         e_R, e_p, e_h, e_pad, e_exact = [], [], [], [], []
         for gid in plant.GetCollisionGeometriesForBody(world):
@@ -478,6 +482,140 @@ def _classify_one(qn, model, scratch) -> int:
                              + (sw[k, 2] - sw[k2, 2]) ** 2) <= s_rho[k] + s_rho[k2] + pad + EPS:
                     return UNKNOWN
     return FREE
+
+
+@nb.njit(cache=True)
+def _reach(model):
+    """Motion bounds of the robot's collision geometry (6,): [R_base, R_1, ..., R_5], where
+    R_base bounds the distance of any point of any geometry from the base's origin (so from its
+    vertical axis) and R_k the distance from arm joint k's origin (the origin of the body it
+    turns; URDF child frames sit at the link origins) of any point of a geometry it moves, at any
+    state: the chain's link offsets summed, plus each geometry's centre offset and bounding
+    radius. Moving linearly in state space between two states moves no point of the robot more
+    than hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k| (`_motion_bound`)."""
+    X_PF, g_body, g_X, g_bound = model[0], model[2], model[3], model[7]
+    link = np.empty(5)
+    for i in range(5):
+        link[i] = math.sqrt(X_PF[i, 0, 3] ** 2 + X_PF[i, 1, 3] ** 2 + X_PF[i, 2, 3] ** 2)
+    out = np.zeros(6)
+    for g in range(g_body.shape[0]):
+        b = g_body[g]
+        own = math.sqrt(g_X[g, 0, 3] ** 2 + g_X[g, 1, 3] ** 2 + g_X[g, 2, 3] ** 2) + g_bound[g]
+        r = own
+        for i in range(b):
+            r += link[i]
+        out[0] = max(out[0], r)
+        for k in range(b):  # joint k turns body k + 1 and the bodies after it
+            rk = own
+            for i in range(k + 1, b):
+                rk += link[i]
+            out[1 + k] = max(out[1 + k], rk)
+    return out
+
+
+@nb.njit(cache=True, inline="always")
+def _motion_bound(a, b, reach):
+    """An upper bound of how far any point of the robot moves between the states a and b, along
+    the straight line between them in state space (see `_reach`)."""
+    return math.hypot(b[0] - a[0], b[1] - a[1]) + reach[0] * abs(b[2] - a[2]) + _arm_motion_bound(a, b, reach)
+
+
+@nb.njit(cache=True, inline="always")
+def _arm_motion_bound(a, b, reach):
+    """An upper bound of how far any point of the robot moves relative to any other between the
+    states a and b (the base's motion moves them all alike)."""
+    m = 0.0
+    for k in range(5):
+        m += reach[1 + k] * abs(b[3 + k] - a[3 + k])
+    return m
+
+
+@nb.njit(cache=True)
+def _free_margin(qn, model, scratch):
+    """(m_env, m_self, radius): how far, at least, every point of the robot could move at the
+    state qn (8,), and every point relative to every other (`_arm_motion_bound`), with
+    the state still FREE by `_classify_one`'s tests, the same tests with the same thresholds:
+    the least clearance beyond its padding (and EPS) of every robot geometry to every
+    environment box, and of every robot pair Drake checks. Both > 0 prove the state FREE;
+    otherwise it says nothing (ask `_classify_one`). Bounding spheres first: a pair's finer
+    test runs only when its bound could lower the margin. The vertical cylinders keep their
+    height (`FreeCertificate`), so a vertical gap to a box turned only about z never shrinks.
+    radius: the largest horizontal distance of a point of the robot from the base's vertical
+    axis at qn (a turn of the base by dtheta moves no point further than radius |dtheta|)."""
+    (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
+     e_exact, pairs, pair_pad) = model
+    G, M, P = g_body.shape[0], e_p.shape[0], pairs.shape[0]
+    _pose_robot(qn, model, scratch)
+    gp, sw = scratch[1], scratch[2]
+    best = np.inf
+    for g in range(G):
+        pad = g_pad[g]
+        if pad == -np.inf:
+            continue
+        for m in range(M):
+            if g_vert[g] and e_zal[m]:
+                # the exact distance sqrt(gxy^2 + gz^2) of classify's test; the cylinder keeps its
+                # height, so only its horizontal gap gxy can shrink: by at most the motion
+                dx, dy, dz = gp[g, 0] - e_p[m, 0], gp[g, 1] - e_p[m, 1], gp[g, 2] - e_p[m, 2]
+                lx = e_R[m, 0, 0] * dx + e_R[m, 1, 0] * dy
+                ly = e_R[m, 0, 1] * dx + e_R[m, 1, 1] * dy
+                ex = max(abs(lx) - e_h[m, 0], 0.0)
+                ey = max(abs(ly) - e_h[m, 1], 0.0)
+                gxy = max(math.sqrt(ex * ex + ey * ey) - g_r[g], 0.0)
+                gz = max(abs(dz) - e_h[m, 2] - g_h[g], 0.0)
+                thr = pad + EPS
+                if gz > thr:
+                    continue  # apart in height whatever the base does
+                if math.sqrt(gxy * gxy + gz * gz) <= thr:
+                    return -1.0, -1.0, 0.0
+                c = gxy - math.sqrt(thr * thr - gz * gz) if thr > 0.0 else gxy
+                best = min(best, c)
+                continue
+            c = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g] - pad - EPS
+            if c >= best:
+                continue
+            if c <= 0.0:  # classify's finer tests
+                c = np.inf
+                for k in range(s0[g], s0[g + 1]):
+                    c = min(c, _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) - s_rho[k] - pad - EPS)
+                if c <= 0.0:
+                    return c, c, 0.0
+            best = min(best, c)
+    if best <= 0.0:
+        return best, best, 0.0
+    own = np.inf
+    for j in range(P):
+        a, c2 = pairs[j, 0], pairs[j, 1]
+        thr = pair_pad[j] + EPS
+        dd = math.sqrt((gp[a, 0] - gp[c2, 0]) ** 2 + (gp[a, 1] - gp[c2, 1]) ** 2 + (gp[a, 2] - gp[c2, 2]) ** 2)
+        c = dd - g_bound[a] - g_bound[c2] - thr
+        if c >= own:
+            continue
+        if c <= 0.0:
+            if g_vert[a] and g_vert[c2]:
+                gxy = max(math.sqrt((gp[a, 0] - gp[c2, 0]) ** 2 + (gp[a, 1] - gp[c2, 1]) ** 2) - g_r[a] - g_r[c2],
+                          0.0)
+                gz = max(abs(gp[a, 2] - gp[c2, 2]) - g_h[a] - g_h[c2], 0.0)
+                c = math.sqrt(gxy * gxy + gz * gz) - thr
+            else:
+                if g_vert[c2]:
+                    a, c2 = c2, a
+                c = np.inf
+                for k in range(s0[c2], s0[c2 + 1]):
+                    if g_vert[a]:
+                        c = min(c, _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2],
+                                                            g_r[a], g_h[a]) - s_rho[k] - thr)
+                        continue
+                    for k2 in range(s0[a], s0[a + 1]):
+                        c = min(c, math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
+                                             + (sw[k, 2] - sw[k2, 2]) ** 2) - s_rho[k] - s_rho[k2] - thr)
+            if c <= 0.0:
+                return c, c, 0.0
+        own = min(own, c)
+    radius = 0.0
+    for g in range(G):
+        radius = max(radius, math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_bound[g])
+    return best, own, radius
 
 
 @nb.njit(cache=True)

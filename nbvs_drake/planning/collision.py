@@ -80,6 +80,13 @@ class CollisionModel:
             return int(bulk.path_verdict(np.ascontiguousarray(states, float), *self.certificate.model, max_step,
                                          bulk.STRIDE, self.counter))
 
+    def bulk_path_undecided(self, states: np.ndarray, max_step: float = 0.02):
+        """(verdict, interpolated states, indices of those the model cannot decide) of a path
+        (bulk.path_undecided)."""
+        with self.timed():
+            return bulk.path_undecided(np.ascontiguousarray(states, float), *self.certificate.model, max_step,
+                                       bulk.STRIDE, self.counter)
+
     def bulk_edges(self, A: np.ndarray, B: np.ndarray, rc: np.ndarray, max_step: float = 0.02) -> np.ndarray:
         """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (bulk.edge_verdicts)."""
         with self.timed():

@@ -17,6 +17,7 @@ from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..motion import detour_waypoints, path_length, rollout, steer, steer_via
 from ..robot import RobotKinematics
+from .bulk import STRIDE
 from .candidates import StateSampler
 from .clearance import FREE, UNKNOWN
 from .collision import CollisionModel
@@ -61,6 +62,35 @@ class PlanningObstacles:
         self._last = ObstacleModel(model, omap.scan_count, {
             "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t})
         return self._last
+
+
+def undecided_free(asks: dict, obstacles: ObstacleModel) -> dict:
+    """{key: whether every state of asks[key] is free}, for the states of paths that the bulk
+    model could not decide (the rest of each path proved free): only those go to Drake (through
+    the certificate), in three batches: the last of each path, every STRIDE-th, the rest (a
+    failing path usually fails early)."""
+    ok = {k: True for k in asks}
+    for rnd in range(3):
+        keys = [k for k in asks if ok[k] and (rnd < 2 or len(asks[k]) > 1)]
+        if not keys:
+            break
+        parts = []
+        for k in keys:
+            n = len(asks[k])
+            sel = np.zeros(n, bool)
+            if rnd == 0:
+                sel[-1] = True
+            else:
+                sel[: n - 1: STRIDE] = True
+                if rnd == 2:
+                    sel = ~sel
+                    sel[-1] = False
+            parts.append(asks[k][sel])
+        free = obstacles.collision.free(np.concatenate(parts))
+        split = np.cumsum([len(a) for a in parts])[:-1]
+        for k, f in zip(keys, np.split(free, split)):
+            ok[k] = bool(np.all(f))
+    return ok
 
 
 class MotionPlanner:
@@ -123,10 +153,19 @@ class MotionPlanner:
         the escape-prefix test of `path_free`."""
         ok = np.array([bool(np.all(self.kin.arm_within_limits(s))) for s in paths], bool)
         undecided = ok.copy()
+        asks = {}  # path -> the interpolated states the model cannot decide (its first is FREE)
+        bulk_ok = self.bulk_checks and obstacles.collision.certificate is not None
         for i in np.flatnonzero(ok):
-            v = self._bulk(paths[i], obstacles, max_step)
+            if not bulk_ok:
+                break
+            v, allq, idx = obstacles.collision.bulk_path_undecided(paths[i], max_step)
             if v != UNKNOWN:
                 ok[i], undecided[i] = v == FREE, False
+            elif len(idx):
+                asks[i] = allq[idx]
+                undecided[i] = False
+        for i, free in undecided_free(asks, obstacles).items():
+            ok[i] = free
         idx = np.flatnonzero(undecided)
         if len(idx):
             ok[idx] = obstacles.free(np.stack([paths[i][-1] for i in idx]))

@@ -19,7 +19,7 @@ from . import bulk
 from .candidates import StateSampler
 from .clearance import COLLIDING, FREE, UNKNOWN
 from .interface import PlanRequest, PlanResult
-from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
+from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, undecided_free
 from .rrt import ITERATIONS_PER_VERTEX, Tree, extend_batch
 from .utility import select_best
 from .views import ViewEvaluator, registration_overlap
@@ -72,11 +72,21 @@ class ORTPlanner:
                 kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE,
                 col.counter)
         unknown = np.flatnonzero(verdict == UNKNOWN)
-        if len(unknown):
-            states = [rollout(tree.q[near[b]], steer_together(tree.q[near[b]], aim[b], rc), rc.control_dt)
-                      for b in unknown]
-            ok = self.motion.tree_paths_free(states, obstacles)
-            verdict[unknown] = np.where(ok, FREE, COLLIDING)
+        if len(unknown):  # Drake about the states the model could not decide (the rest proved free)
+            with col.timed():
+                first, offsets, und = bulk.extension_undecided(
+                    tree.q, tree.n, np.ascontiguousarray(batch[unknown], float), w, p.tree_step,
+                    bulk.robot_params(rc), kin.arm_lower, kin.arm_upper, *col.certificate.model,
+                    self.motion.tree_max_step, bulk.STRIDE, col.counter)
+            asks = {b: und[offsets[k]:offsets[k + 1]] for k, b in enumerate(unknown) if not first[k]}
+            for b, ok in undecided_free(asks, obstacles).items():
+                verdict[b] = FREE if ok else COLLIDING
+            whole = unknown[first]  # the edge's first state undecided: the whole edge's checks
+            if len(whole):
+                states = [rollout(tree.q[near[b]], steer_together(tree.q[near[b]], aim[b], rc), rc.control_dt)
+                          for b in whole]
+                ok = self.motion.tree_paths_free(states, obstacles)
+                verdict[whole] = np.where(ok, FREE, COLLIDING)
         for b in np.flatnonzero(verdict == FREE):
             if tree.n >= tree.q.shape[0]:
                 break

@@ -47,6 +47,9 @@ class RegistrationConfig:
     ambiguity_rad: float = 0.05
     ambiguity_cost: float = 0.05
     max_rmse: float = 0.01  #: m, inlier point-to-plane RMSE of the last stage
+    #: m: the fit caps each point's residual here (0: at the last stage's correspondence
+    #: distance, 2 cm, which is also what a point with no model point near costs)
+    residual_cap: float = 0.0
     see_through_tol: float = 0.03  #: m a ray may run inside a known solid (edges, noise)
     #: start grid along the prior's two main axes (in its standard deviations)
     grid_major: tuple = (-2.0, -1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0)
@@ -277,9 +280,13 @@ class PlanarIcp:
         return xi
 
     def evaluate(self, xi):
-        """(MAP cost, fitness, rmse): the cost caps residuals at the last distance and sums
-        them over the points on structure that plane motion can observe (non-horizontal
-        surfaces, or no model point near); fitness and rmse are over all points."""
+        """(MAP cost, fitness, rmse): the cost caps residuals at `cfg.residual_cap` (or the
+        last distance) and sums them over the points on structure that plane motion can
+        observe (non-horizontal surfaces, or no model point near); fitness and rmse are over
+        all points. A point with no model point near costs the cap: new surface, which a view
+        from a new side always brings, then costs less than a misalignment of two caps, so a
+        wrong pose that tucks the new surface into the model does not win by it (a point in
+        known free space, or seen through a known solid, still costs the full last distance)."""
         cfg, Q, NQ = self.cfg, self.Q, self.NQ
         s2 = cfg.point_sigma ** 2
         xi = np.asarray(xi, float)
@@ -292,7 +299,8 @@ class PlanarIcp:
         r = np.where(ok, np.sum(NQ[jj] * (X - Q[jj]), axis=1), dmax)
         structure = np.where(ok, np.abs(NQ[jj][:, 2]) < 0.7, True)
         rs = r[structure]
-        cost = float(np.sum(np.minimum(rs * rs, dmax * dmax)) / s2 + xi @ self.Cinv @ xi)
+        cap = cfg.residual_cap or dmax
+        cost = float(np.sum(np.minimum(rs * rs, cap * cap)) / s2 + xi @ self.Cinv @ xi)
         if self.free_at is not None:  # surface in known free space costs like an unmatched point
             cost += float(np.count_nonzero(self.free_at(X))) * dmax * dmax / s2
         if self.view_pts is not None:  # so does a return seen through a known solid

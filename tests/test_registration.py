@@ -272,3 +272,31 @@ def test_localisation_holds_back_a_scan_it_cannot_register(renderer):
     assert pending[2, 2] > 0.01  # the heading variance of the plan carries over, for the planner too
     np.testing.assert_allclose(pending, pending.T)
     assert np.all(np.linalg.eigvalsh(pending) > 0)
+
+
+def test_the_residual_cap_is_what_a_point_on_new_surface_costs():
+    """PlanarIcp.evaluate by hand: a wall of model points (normals along x) and a scan with n
+    points on it, 3 mm off, and m points on new surface far from any model point. Each point on
+    the wall costs (3 mm / s)^2, each new one the cap squared over s^2: the last stage's 2 cm by
+    default, mission.registration_residual_cap when set."""
+    from nbvs_drake.registration import PlanarIcp
+    yy, zz = np.meshgrid(np.arange(-0.3, 0.3, 0.005), np.arange(0.0, 0.3, 0.005))
+    wall = np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], axis=1)
+    normals = np.tile([1.0, 0.0, 0.0], (len(wall), 1))
+    rng = np.random.default_rng(0)
+    on = wall[rng.choice(len(wall), 200, replace=False)] + [0.003, 0.0, 0.0]
+    new = np.stack([rng.uniform(0.2, 0.4, 50), rng.uniform(-0.2, 0.2, 50), rng.uniform(0.0, 0.3, 50)], axis=1)
+    prior = np.diag([1.0, 1.0, 1.0])
+    for cap, per_new in ((0.0, (0.02 / 0.005) ** 2), (0.01, (0.01 / 0.005) ** 2)):
+        cfg = RegistrationConfig(model_voxel=0.001, residual_cap=cap)
+        prob = PlanarIcp(np.concatenate([on, new]), RegistrationModel(wall, normals), prior, cfg)
+        cost, fitness, rmse = prob.evaluate(np.zeros(3))
+        assert cost == pytest.approx(200 * (0.003 / 0.005) ** 2 + 50 * per_new, rel=1e-6)
+        assert fitness == pytest.approx(200 / 250) and rmse == pytest.approx(0.003, rel=1e-6)
+
+
+def test_the_residual_cap_is_on_with_verified_views_unless_set():
+    assert load_scenario("teapot_eu_mu").mission.residual_cap() == 0.0  # the paper's settings
+    assert load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"]).mission.residual_cap() == 0.01
+    assert load_scenario("teapot_eu_mu", settings=["mission.verify_views=true",
+                                                   "mission.registration_residual_cap=0"]).mission.residual_cap() == 0.0

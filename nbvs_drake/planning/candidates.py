@@ -14,6 +14,7 @@ from ..config import Scenario, resolve_sensor
 from ..mapping.occupancy import OccupancyMap
 from ..robot import RobotKinematics
 from ..state import NQ
+from .clearance import _body_chain
 from .views import director_ray_hits
 
 
@@ -84,42 +85,17 @@ class StateSampler:
 def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, out):
     """out[n]: the camera's optical axis (+z of X_WB5 @ X_L5C) at state q[n] enters the box
     [bmin, bmax] before t_far and leaves it after t_near (the slab test of
-    `views.director_ray_hits`, NaN slabs ignored as nanmax / nanmin ignore them). The forward
-    kinematics of `clearance._body_poses_into`, with scalar indexing (no sub-array views)."""
-    A = np.empty((3, 4))  # the rows of the body pose along the chain
-    B = np.empty((3, 4))
+    `views.director_ray_hits`, NaN slabs ignored as nanmax / nanmin ignore them), with the
+    forward kinematics of `clearance._body_chain`."""
+    T = np.empty((6, 4, 4))
+    tmp = np.empty((4, 4))
     for n in range(q.shape[0]):
-        c, s = math.cos(q[n, 2]), math.sin(q[n, 2])
-        A[0, 0], A[0, 1], A[0, 2], A[0, 3] = c, -s, 0.0, q[n, 0]
-        A[1, 0], A[1, 1], A[1, 2], A[1, 3] = s, c, 0.0, q[n, 1]
-        A[2, 0], A[2, 1], A[2, 2], A[2, 3] = 0.0, 0.0, 1.0, 0.0
-        for b in range(5):
-            for i in range(3):  # B = A @ X_PF[b]
-                for j in range(4):
-                    B[i, j] = A[i, 0] * X_PF[b, 0, j] + A[i, 1] * X_PF[b, 1, j] + A[i, 2] * X_PF[b, 2, j]
-                B[i, 3] += A[i, 3]
-            k0, k1, k2 = axes[b, 0], axes[b, 1], axes[b, 2]
-            sn, cs = math.sin(q[n, 3 + b]), math.cos(q[n, 3 + b])
-            v = 1.0 - cs
-            r00 = 1.0 + v * (-k2 * k2 - k1 * k1)
-            r01 = -sn * k2 + v * k0 * k1
-            r02 = sn * k1 + v * k0 * k2
-            r10 = sn * k2 + v * k0 * k1
-            r11 = 1.0 + v * (-k2 * k2 - k0 * k0)
-            r12 = -sn * k0 + v * k1 * k2
-            r20 = -sn * k1 + v * k0 * k2
-            r21 = sn * k0 + v * k1 * k2
-            r22 = 1.0 + v * (-k1 * k1 - k0 * k0)
-            for i in range(3):  # A = B @ rot
-                A[i, 0] = B[i, 0] * r00 + B[i, 1] * r10 + B[i, 2] * r20
-                A[i, 1] = B[i, 0] * r01 + B[i, 1] * r11 + B[i, 2] * r21
-                A[i, 2] = B[i, 0] * r02 + B[i, 1] * r12 + B[i, 2] * r22
-                A[i, 3] = (B[i, 0] * 0.0 + B[i, 1] * 0.0 + B[i, 2] * 0.0) + B[i, 3]
+        _body_chain(q[n], X_PF, axes, T, tmp)
         t0, t1 = -np.inf, np.inf
         slabs = False
         for i in range(3):
-            o = A[i, 0] * X_L5C[0, 3] + A[i, 1] * X_L5C[1, 3] + A[i, 2] * X_L5C[2, 3] + A[i, 3]
-            d = A[i, 0] * X_L5C[0, 2] + A[i, 1] * X_L5C[1, 2] + A[i, 2] * X_L5C[2, 2]
+            o = T[5, i, 0] * X_L5C[0, 3] + T[5, i, 1] * X_L5C[1, 3] + T[5, i, 2] * X_L5C[2, 3] + T[5, i, 3]
+            d = T[5, i, 0] * X_L5C[0, 2] + T[5, i, 1] * X_L5C[1, 2] + T[5, i, 2] * X_L5C[2, 2]
             inv = 1.0 / d if d != 0.0 else math.copysign(np.inf, d)
             ta = (bmin[i] - o) * inv
             tb = (bmax[i] - o) * inv

@@ -371,12 +371,9 @@ def _scratch(model):
 
 
 @nb.njit(cache=True, inline="always")
-def _pose_robot(qn, model, scratch):
-    """Fills scratch with the robot's geometry poses (XG), their centres (gp) and the sphere
-    centres (sw) at the state qn (8,): `_body_poses_into` and the geometry and sphere
-    transforms, with the same arithmetic, written with scalar indexing (no sub-array views)."""
-    X_PF, axes, g_body, g_X, s_geom, s_c = model[0], model[1], model[2], model[3], model[10], model[11]
-    XG, gp, sw, T, tmp, rot = scratch
+def _body_chain(qn, X_PF, axes, T, tmp):
+    """T[0..5] = the poses of ROBOT_BODIES at the state qn (8,): `_body_poses_into`'s
+    arithmetic, written with scalar indexing (no sub-array views); tmp (4, 4) is scratch."""
     c, s = math.cos(qn[2]), math.sin(qn[2])
     for i in range(4):
         for j in range(4):
@@ -408,6 +405,16 @@ def _pose_robot(qn, model, scratch):
             T[b + 1, i, 3] = (tmp[i, 0] * 0.0 + tmp[i, 1] * 0.0 + tmp[i, 2] * 0.0) + tmp[i, 3]
         T[b + 1, 3, 0] = T[b + 1, 3, 1] = T[b + 1, 3, 2] = 0.0
         T[b + 1, 3, 3] = 1.0
+
+
+@nb.njit(cache=True, inline="always")
+def _pose_robot(qn, model, scratch):
+    """Fills scratch with the robot's geometry poses (XG), their centres (gp) and the sphere
+    centres (sw) at the state qn (8,): `_body_poses_into` and the geometry and sphere
+    transforms, with the same arithmetic, written with scalar indexing (no sub-array views)."""
+    X_PF, axes, g_body, g_X, s_geom, s_c = model[0], model[1], model[2], model[3], model[10], model[11]
+    XG, gp, sw, T, tmp, rot = scratch
+    _body_chain(qn, X_PF, axes, T, tmp)
     for g in range(g_body.shape[0]):
         a = g_body[g]
         for i in range(3):

@@ -174,10 +174,7 @@ class Localisation(LeafSystem):
                                      sum(1 for f in mem.frames if f.get("purpose") != "leg"))
         t_register = time.perf_counter() - t1
         model = mem.model
-        # only sensing scans grow the registration model (the map's scans): a localisation
-        # frame often sees a small patch, and its correction, good enough to re-aim, left the
-        # model 1-4 cm off when merged (bunny EU-MU seed 2: 61.8 %; docs/decisions.md)
-        if integrate and not check:
+        if integrate and (not check or icp.applied):
             model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),

@@ -499,7 +499,9 @@ def _reach(model):
     turns; URDF child frames sit at the link origins) of any point of a geometry it moves, at any
     state: the chain's link offsets summed, plus each geometry's centre offset and bounding
     radius. Moving linearly in state space between two states moves no point of the robot more
-    than hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k| (`_motion_bound`)."""
+    than hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k|; `bulk._verdict_of_states` uses
+    the state's own radius (`_free_margin`) in place of R_base, and `_arm_motion_bound` the
+    sum over the joints."""
     X_PF, g_body, g_X, g_bound = model[0], model[2], model[3], model[7]
     link = np.empty(5)
     for i in range(5):
@@ -521,16 +523,10 @@ def _reach(model):
 
 
 @nb.njit(cache=True, inline="always")
-def _motion_bound(a, b, reach):
-    """An upper bound of how far any point of the robot moves between the states a and b, along
-    the straight line between them in state space (see `_reach`)."""
-    return math.hypot(b[0] - a[0], b[1] - a[1]) + reach[0] * abs(b[2] - a[2]) + _arm_motion_bound(a, b, reach)
-
-
-@nb.njit(cache=True, inline="always")
 def _arm_motion_bound(a, b, reach):
     """An upper bound of how far any point of the robot moves relative to any other between the
-    states a and b (the base's motion moves them all alike)."""
+    states a and b, along the straight line between them in state space (the base's motion
+    moves them all alike): sum_k R_k |dq_k| (`_reach`)."""
     m = 0.0
     for k in range(5):
         m += reach[1 + k] * abs(b[3 + k] - a[3 + k])

@@ -261,6 +261,15 @@ class MissionConfig:
     #: a drive that more base motion follows, with a localisation frame at each leg's end; the
     #: expected utility's rollouts start each leg from its (re-localised) start
     legs: bool = False
+    #: with legs: a leg also ends after each turn in place that a drive follows, so the frame
+    #: there corrects the heading before the drive (the turn's heading error, up to ~0.4 rad
+    #: after a half turn under Table 4, would otherwise move the base sideways over the drive)
+    leg_turns: bool = False
+    #: with verify_views under noise: a recovery path (the next leg, a correction, a
+    #: re-localisation view) must also be free in this many rollouts of its own controls
+    #: from the belief's spread (at least the registration's; Algorithm 1's rule, no
+    #: collision allowed). 0: only its base shifted by +-2 cm and +-0.02 rad is checked
+    recovery_rollouts: int = 0
     view_tolerance_m: float = 0.03
     view_tolerance_rad: float = 0.05
     max_recoveries: int = 3
@@ -523,6 +532,7 @@ def validate(sc: Scenario) -> Scenario:
              f"mission.view_tolerance_m and view_tolerance_rad must be > 0, got {mi.view_tolerance_m}, "
              f"{mi.view_tolerance_rad}")
     _require(mi.max_recoveries >= 0, f"mission.max_recoveries must be >= 0, got {mi.max_recoveries}")
+    _require(mi.recovery_rollouts >= 0, f"mission.recovery_rollouts must be >= 0, got {mi.recovery_rollouts}")
     _require(mi.on_collision in ("stop", "continue"),
              f"mission.on_collision must be 'stop' or 'continue', got {mi.on_collision!r}")
     _require(mi.stop_unknown_voxels >= 0, f"mission.stop_unknown_voxels must be >= 0, got {mi.stop_unknown_voxels}")

@@ -228,3 +228,96 @@ def test_the_planner_sends_the_robot_on_to_the_next_legs_end(kin, first_scan_map
         assert new.controls.plan_id == 5 and new.controls.purpose == purpose and new.legs == ()
         np.testing.assert_allclose(new.controls.states[-1], leg_end if legs else target, atol=1e-9)
         assert np.array_equal(new.controls.target, target)
+
+
+def test_with_leg_turns_a_leg_also_ends_after_a_long_turn_that_a_drive_follows():
+    """mission.leg_turns: Table 4's heading noise is per control step (sigma_w dt), so a leg
+    ends after a turn of at least motion.min_leg_turn steps that a drive follows; a shorter
+    turn stays in its leg."""
+    from nbvs_drake.config import RobotConfig
+    from nbvs_drake.motion import leg_ends, min_leg_turn, plan_legs, rollout, steer
+    rc = RobotConfig()
+    sc = load_scenario("cluttered_room", settings=["mission.verify_views=true", "mission.legs=true",
+                                                    "mission.leg_turns=true"])
+    n = min_leg_turn(sc)
+    step = sc.noise.sigma_w * sc.robot.control_dt  # 0.028 rad
+    # the smallest turn whose spread is more than twice what a frame and one corrective step leave
+    assert step * np.sqrt(n) > 2 * np.hypot(0.01, step) >= step * np.sqrt(n - 1)
+    assert min_leg_turn(load_scenario("cluttered_room")) == 0
+    q0 = np.array([-1.3, 0, 0, 0, 0.3, -0.3, -0.2, 0])
+    q1 = np.array([0.9, 1.0, 2.0, 0.5, 0.3, -0.3, -0.2, 0])
+    c = steer(q0, q1, rc)[0][1]
+    ends = plan_legs(sc, c)
+    assert len(ends) == 3 and ends[1:] == leg_ends(c)
+    # the first leg is the turn alone: the base stands where it started, facing the drive
+    s = rollout(q0, c, rc.control_dt)
+    assert np.all(c[:ends[0], 0] == 0) and c[ends[0], 0] != 0 and np.all(c[:ends[0], 1] != 0)
+    np.testing.assert_allclose(s[ends[0], :2], q0[:2])
+    assert leg_ends(c, n, after_drives=False) == [ends[0], len(c)]
+    # a turn shorter than n steps before the drive: no leg end there
+    short = c[ends[0] - n + 1:]
+    assert leg_ends(short, n, after_drives=False) == [len(short)]
+    assert plan_legs(load_scenario("cluttered_room"), c) == [len(c)]  # no legs without verify_views
+
+
+def test_with_leg_turns_each_leg_has_its_own_recovery_budget():
+    from nbvs_drake.systems.localisation import _recoveries
+    frames = [{"purpose": "leg"}, {"purpose": "relocalise"}, {"purpose": "relocalise"}, {"purpose": "leg"},
+              {"purpose": "relocalise"}]
+    assert _recoveries(frames, per_leg=False) == 3
+    assert _recoveries(frames, per_leg=True) == 1
+    assert _recoveries(frames[:4], per_leg=True) == 0
+    assert _recoveries([], per_leg=True) == 0
+
+
+def test_with_leg_turns_a_replanned_leg_turns_first_then_drives(kin, first_scan_map):
+    """A frame at a leg's end far off its line (0.4 rad): the answer is the turn back onto the
+    line alone, and the leg's end stays ahead of the legs still to go."""
+    from nbvs_drake.motion import rollout, steer
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.interface import PlanResult
+    from nbvs_drake.systems.nbvs_planner import NBVSPlanner
+    _, omap = first_scan_map
+    sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true", "mission.legs=true",
+                                                  "mission.leg_turns=true"])
+    q0 = np.array(sc.robot.start, float)
+    impl = make_planner(sc, kin)
+    sysm = NBVSPlanner(sc, impl, q0)
+    q_end = q0.copy()
+    q_end[:3] = [-1.45, -0.9, -np.pi / 2]
+    later = (q0.copy(),)
+    start = q0.copy()
+    start[2] = -np.pi / 2 + 1.2  # the frame found the base 1.2 rad off the leg's heading
+    c = steer(start, q_end, sc.robot)[0][1]
+    res = PlanResult("ok", q_end, c, rollout(start, c, sc.robot.control_dt), "together")
+    first, legs = sysm._first_leg(res, later)
+    assert len(legs) == 2 and np.allclose(legs[0], q_end, atol=1e-6)
+    assert legs[1] is later[0]
+    assert np.all(first.controls[:, 0] == 0) and np.all(first.controls[:, 1] != 0)
+    np.testing.assert_allclose(first.states[-1][:2], start[:2])
+
+
+def test_recovery_rollouts_reject_a_path_that_the_belief_s_spread_drives_into_the_table(kin, first_scan_map):
+    """mission.recovery_rollouts: a drive towards the table that stops 6 cm short of contact
+    is free, also shifted by the +-2 cm margins; with the belief 5 cm unsure along the drive
+    its rollouts reach the table and the path is refused, with the registration's 1 cm
+    spread it is kept."""
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.recovery import Recovery
+    _, omap = first_scan_map
+    sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true", "mission.recovery_rollouts=200"])
+    impl = make_planner(sc, kin)
+    rec = Recovery(sc, kin, impl.motion, impl.obstacles)
+    obs = impl.obstacles.for_map(omap)
+    q0 = np.array(sc.robot.start, float)
+    line = np.repeat(q0[None], 400, axis=0)
+    line[:, 0] = q0[0] + np.linspace(0.0, 1.2, 400)
+    contact = line[np.argmin(obs.free(line)), 0]  # the first x where the robot meets the table
+    assert contact > q0[0] + 0.2
+    goal = q0.copy()
+    goal[0] = contact - 0.06
+    assert rec._direct(q0, goal, obs) is not None  # no rollouts: free with its margins
+    assert rec._direct(q0, goal, obs, np.zeros((3, 3))) is not None  # the registration's spread
+    assert rec._direct(q0, goal, obs, np.diag([0.05 ** 2, 0.0, 0.0])) is None
+    assert Recovery(load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"]), kin, impl.motion,
+                    impl.obstacles)._direct(q0, goal, obs, np.diag([0.05 ** 2, 0.0, 0.0])) is not None

@@ -151,22 +151,42 @@ class Recovery:
         self.motion = motion
         self.obstacles = obstacles
         self._center = 0.5 * (np.asarray(sc.scene.bbox_min, float) + np.asarray(sc.scene.bbox_max, float))
+        self._checker = None
+        self._checks = 0  # rollout checks so far: each draws from its own seeded generator
+        if sc.mission.recovery_rollouts > 0:
+            from .utility import ExpectedUtilityScore
+            self._checker = ExpectedUtilityScore(sc, None, motion, None)
 
     #: the pose error a registered belief may still have (m, rad): a recovery path must stay
     #: free with its base moved by this much either way (`_direct`)
     margin_m: float = 0.02
     margin_rad: float = 0.02
 
-    def _direct(self, q0, q1, obs):
+    def _direct(self, q0, q1, obs, cov=None):
         """The first steering sequence from q0 to q1 that is free, also with the whole path's
         base shifted by +-margin_m in x and y and turned by +-margin_rad about its own
         centre: a recovery path is not scored by the expected utility, and the belief it
-        starts from is only as good as the registration (~1 cm). (kind, controls, states) or None."""
+        starts from is only as good as the registration (~1 cm). With
+        mission.recovery_rollouts, also in that many rollouts of its controls from the
+        belief's spread `cov` (3, 3) plus the registration's (`_noise_free`).
+        (kind, controls, states) or None."""
         for kind, controls in steer(q0, q1, self.sc.robot):
             states = rollout(q0, controls, self.sc.robot.control_dt)
-            if self.motion.path_free(states, obs) and self.motion.paths_free(self._shifted(states), obs).all():
+            if self.motion.path_free(states, obs) and self.motion.paths_free(self._shifted(states), obs).all() \
+                    and self._noise_free(controls, states, obs, cov):
                 return kind, controls, states
         return None
+
+    def _noise_free(self, controls, states, obs, cov) -> bool:
+        """mission.recovery_rollouts > 0: whether that many rollouts of `controls` are free."""
+        if self._checker is None:
+            return True
+        from ..motion import REGISTERED_SIGMA
+        floor = np.diag(np.square(REGISTERED_SIGMA))
+        cov = floor if cov is None else np.asarray(cov, float) + floor
+        self._checks += 1
+        rng = np.random.default_rng([self.sc.seed, 23, self._checks])
+        return self._checker.rollouts_free(controls, states, obs, cov, rng, self.sc.mission.recovery_rollouts)
 
     def _shifted(self, states: np.ndarray) -> list[np.ndarray]:
         out = []
@@ -179,7 +199,7 @@ class Recovery:
             out.append(s)
         return out
 
-    def correct(self, omap, q_now: np.ndarray, q_target: np.ndarray) -> PlanResult:
+    def correct(self, omap, q_now: np.ndarray, q_target: np.ndarray, cov=None) -> PlanResult:
         """Back to the planned view from the corrected belief: the arm alone when that puts the
         camera within 3 x mission.view_tolerance_m of the planned camera and aims it at the
         planned look-at point within mission.view_tolerance_rad (purpose "correct": exact
@@ -191,20 +211,20 @@ class Recovery:
         q_arm = arm_correction(self.kin, q_now, q_target, point)
         d, _ = camera_error(self.kin, q_arm, q_target)
         if d <= 3 * mi.view_tolerance_m and aim_error(self.kin, q_arm, point)[0] <= mi.view_tolerance_rad:
-            found = self._direct(q_now, q_arm, obs)
+            found = self._direct(q_now, q_arm, obs, cov)
             if found is not None:
                 return PlanResult("ok", q_arm, found[1], found[2], "arm_correction",
                                   factors={"purpose": "correct", "camera_error_m": round(d, 4)})
-        found = self._direct(q_now, q_target, obs)
+        found = self._direct(q_now, q_target, obs, cov)
         if found is None:
             return PlanResult("no_path")
         return PlanResult("ok", np.asarray(q_target, float), found[1], found[2], found[0],
                           factors={"purpose": "view"})
 
-    def leg(self, omap, q_now: np.ndarray, q_end: np.ndarray) -> PlanResult:
+    def leg(self, omap, q_now: np.ndarray, q_end: np.ndarray, cov=None) -> PlanResult:
         """The next leg (mission.legs): the shortest free steering path from the corrected
         belief to the leg's planned end (purpose "leg"), or status "no_path"."""
-        found = self._direct(q_now, q_end, self.obstacles.for_map(omap))
+        found = self._direct(q_now, q_end, self.obstacles.for_map(omap), cov)
         if found is None:
             return PlanResult("no_path")
         return PlanResult("ok", np.asarray(q_end, float), found[1], found[2], found[0], factors={"purpose": "leg"})
@@ -222,7 +242,7 @@ class Recovery:
         marks = registration_landmarks(self.sc, omap.object_points, rng)
         score = relocalisation_scores(self.kin, self.sc, cand, cov, marks, rng)
         for i in np.argsort(-score, kind="stable")[:20]:
-            found = self._direct(q_now, cand[i], obs)
+            found = self._direct(q_now, cand[i], obs, cov)
             if found is not None:
                 return PlanResult("ok", cand[i], found[1], found[2], "relocalise", utility=float(score[i]),
                                   factors={"purpose": "relocalise", "landmarks_in_view": round(float(score[i]), 4)})

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import leg_ends, plans_in_legs
+from ..motion import REGISTERED_SIGMA, plan_legs, plans_in_legs
 from . import bulk
 from .clearance import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
@@ -90,19 +90,27 @@ class ExpectedUtilityScore:
                                                       c[steps - 1], r[steps - 1], *cert.model, col.counter)
 
     #: with verified views, the rollouts of every leg start from the belief spread by the
-    #: registration's own error (1 cm, 1 cm, 0.01 rad standard deviations; the corrected
-    #: errors measured were mostly below 5 mm and 0.003 rad, at most 1.8 cm and 0.01 rad)
-    REGISTERED_SIGMA = (0.01, 0.01, 0.01)
+    #: registration's own error (motion.REGISTERED_SIGMA)
+    REGISTERED_SIGMA = REGISTERED_SIGMA
 
     def registered_cov(self) -> np.ndarray:
         return np.diag(np.square(self.REGISTERED_SIGMA))
+
+    def leg_cov(self) -> np.ndarray:
+        """The spread a later leg's rollouts start from: the registration's, and with
+        mission.leg_turns also one control step of corrective turn (the re-planned leg turns
+        back onto its line before it drives, and a turn's noise is per step)."""
+        cov = self.registered_cov()
+        if self.sc.mission.leg_turns:
+            cov[2, 2] += (self.sc.noise.sigma_w * self.sc.robot.control_dt) ** 2
+        return cov
 
     def uses_legs(self) -> bool:
         """mission.legs with verified views under motion noise: plans run in legs."""
         return plans_in_legs(self.sc)
 
     def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
-        """Algorithm 1 for one candidate. With legs (`uses_legs`, motion.leg_ends) each leg's
+        """Algorithm 1 for one candidate. With legs (`uses_legs`, motion.plan_legs) each leg's
         rollouts start from its nominal start (the first from the belief and its spread, the
         others re-localised by the frame at the previous leg's end); the candidate is feasible
         when every leg is, and its value is the last leg's."""
@@ -113,7 +121,7 @@ class ExpectedUtilityScore:
         else:
             def final_utility(s):
                 return self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration)
-        ends = leg_ends(cand.controls) if self.uses_legs() else [len(cand.controls)]
+        ends = plan_legs(self.sc, cand.controls)
         floor = self.registered_cov() if self.sc.mission.verify_views else None
         start, checked, collided, eu = 0, 0, 0, None
         for j, end in enumerate(ends):
@@ -121,6 +129,8 @@ class ExpectedUtilityScore:
             cov = request.start_cov if j == 0 else None
             if floor is not None:  # a registered belief is only as good as the registration
                 cov = floor if cov is None else np.asarray(cov, float) + floor
+                if j > 0:
+                    cov = self.leg_cov()
             eu = self._expected_leg(request, cand.controls[start:end], cand.states[start:end + 1], obstacles, cov,
                                     final_utility if last else (lambda s: np.ones(len(s))), escape=j == 0)
             checked, collided = checked + eu.rollouts_checked, collided + eu.collided_rollouts
@@ -130,11 +140,23 @@ class ExpectedUtilityScore:
         eu.rollouts_checked, eu.collided_rollouts = checked, collided
         return eu
 
+    def rollouts_free(self, controls: np.ndarray, states: np.ndarray, obstacles: ObstacleModel, cov,
+                      rng: np.random.Generator, k: int) -> bool:
+        """Whether k rollouts of `controls` from states[0] moved by draws of `cov` (3, 3) are
+        free at every state (Algorithm 1's feasibility, no collision allowed): the check of
+        a path no expected utility scores (mission.recovery_rollouts)."""
+        eu = self._expected_leg(PlanRequest(None, states[0], rng, cov), controls, states, obstacles, cov,
+                                lambda s: np.ones(len(s)), k=k, max_collision_rate=0.0)
+        return eu.feasible
+
     def _expected_leg(self, request: PlanRequest, controls: np.ndarray, states: np.ndarray, obstacles: ObstacleModel,
-                      start_cov, final_utility, escape: bool = True):
+                      start_cov, final_utility, escape: bool = True, k: int | None = None,
+                      max_collision_rate: float | None = None):
         """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
-        states (m+1, 8)."""
+        states (m+1, 8); k and max_collision_rate default to the planner's."""
         p = self.sc.planner
+        k = p.eu_samples if k is None else k
+        rate = p.eu_max_collision_rate if max_collision_rate is None else max_collision_rate
         # the nominal path's escape from a colliding start
         skip = (self.motion.escape_prefix(states, obstacles) or 0) if escape else 0
         verdicts = self._rollout_verdicts(states[1:], obstacles)
@@ -155,9 +177,9 @@ class ExpectedUtilityScore:
         def free(s):  # rows: rollouts x states 1..m
             return block_free(np.asarray(s, float).reshape(-1, m, 8), np.arange(1, m + 1)).reshape(-1)
         return expected_utility(
-            states[0], controls, self.sc.robot.control_dt, p.eu_samples, self.sc.noise, request.rng,
+            states[0], controls, self.sc.robot.control_dt, k, self.sc.noise, request.rng,
             free, final_utility,
-            weighting=p.eu_weighting, max_collision_rate=p.eu_max_collision_rate, start_cov=start_cov,
+            weighting=p.eu_weighting, max_collision_rate=rate, start_cov=start_cov,
             block_free=block_free if self.motion.bulk_checks else None)
 
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):

@@ -60,6 +60,20 @@ class _Outcome:
         return self
 
 
+def _recoveries(frames, per_leg: bool) -> int:
+    """The localisation frames mission.max_recoveries bounds: those not at a leg's end since
+    the scan, or (per_leg: mission.leg_turns, whose plans have twice the legs) since the last
+    leg's frame, so each leg has its own budget."""
+    n = 0
+    for f in reversed(frames):
+        if f.get("purpose") == "leg":
+            if per_leg:
+                break
+            continue
+        n += 1
+    return n
+
+
 class Localisation(LeafSystem):
     """Registers each scan and holds the belief. While a plan executes the belief is its
     predicted end state (dead reckoning). When the controller reports that a new plan has
@@ -81,7 +95,7 @@ class Localisation(LeafSystem):
     correction or a re-localisation view, and the frame is neither integrated nor counted (its
     report goes with the next sensing scan's, `frames`). A plan with purpose "correct" (the
     arm alone, exact) ends in the sensing scan, and so does the frame after
-    mission.max_recoveries localisation frames.
+    mission.max_recoveries localisation frames (with mission.leg_turns, per leg).
 
     Input ports:
       - point_cloud (abstract PointCloud): the depth camera's cloud, world frame at the
@@ -171,7 +185,7 @@ class Localisation(LeafSystem):
                     pending = prior
                     integrate = not self.sc.mission.skip_unregistered_scans
                 check = self._verify(tau, icp, corr.apply_state(mem.belief.state),
-                                     sum(1 for f in mem.frames if f.get("purpose") != "leg"))
+                                     _recoveries(mem.frames, self.sc.mission.leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
         if integrate and (not check or icp.applied):

@@ -137,12 +137,12 @@ class NBVSPlanner(LeafSystem):
         state.get_mutable_abstract_state(self._mem).set_value(new)
 
     def _legs(self, controls) -> list[int]:
-        """Where the plan's legs end (motion.leg_ends) when it runs in legs (mission.legs with
-        verified views under noise), else [m]."""
-        from ..motion import leg_ends, plans_in_legs
-        if self.recovery is None or not plans_in_legs(self.sc):
+        """Where the plan's legs end (motion.plan_legs: mission.legs with verified views under
+        noise), else [m]."""
+        from ..motion import plan_legs
+        if self.recovery is None:
             return [len(controls)]
-        return leg_ends(controls)
+        return plan_legs(self.sc, controls)
 
     def _recover(self, mem: PlannerMemory, omap: OccupancyMap, belief: Belief) -> PlannerMemory:
         """The answer to a localisation frame: a correction back to the view being verified or
@@ -157,11 +157,13 @@ class NBVSPlanner(LeafSystem):
         else:
             res = None
             if legs:  # on to the end of the next leg, from where the frame put the robot
-                res = self.recovery.leg(omap, belief.state, legs[0])
+                res = self.recovery.leg(omap, belief.state, legs[0], belief.covariance)
                 legs = legs[1:]
+                if res.status == "ok":  # mission.leg_turns: a long turn back onto the line is a leg
+                    res, legs = self._first_leg(res, legs)
             if res is None or res.status != "ok":
                 legs = ()
-                res = self.recovery.correct(omap, belief.state, mem.target)
+                res = self.recovery.correct(omap, belief.state, mem.target, belief.covariance)
         if res.status != "ok":
             # nothing to execute: an empty plan ends at once where the robot is, and its frame
             # is taken again (counted towards mission.max_recoveries)
@@ -171,6 +173,19 @@ class NBVSPlanner(LeafSystem):
         tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states,
                               "relocalise" if purpose == "stay" else purpose, mem.target)
         return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target, legs)
+
+    def _first_leg(self, res: PlanResult, legs: tuple) -> tuple[PlanResult, tuple]:
+        """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of
+        its own (mission.leg_turns, motion.min_leg_turn): that turn, and the leg's end ahead
+        of `legs`."""
+        from ..motion import leg_ends, min_leg_turn
+        n = min_leg_turn(self.sc)
+        ends = leg_ends(res.controls, n, after_drives=False) if n else [len(res.controls)]
+        if len(ends) == 1:
+            return res, legs
+        rest = tuple(res.states[e] for e in ends[1:])
+        res.controls, res.states = res.controls[:ends[0]], res.states[:ends[0] + 1]
+        return res, rest + legs
 
     def _calc_controls(self, context, output):
         output.set_value(self._mem_of(context).controls)

@@ -210,6 +210,10 @@ class PlannerConfig:
     #: icp registers against the table too), so a rollout that drifts off the object is
     #: still registered and its scan still counts
     eu_rollout_registration: bool = True
+    #: rollouts whose start, a draw of the belief's spread, collides are dropped: the robot
+    #: stands free, so those poses are not possible (the belief conditioned on no collision).
+    #: False: Algorithm 1 as is, any colliding start makes the candidate unfeasible
+    eu_free_start: bool = False
     #: when no candidate is feasible under the motion noise (or none has a path), views from
     #: the current base by the arm alone (exact motion under Table 4's noise) before the run
     #: stops with no_feasible_under_noise (planning/recovery.py)

@@ -148,3 +148,29 @@ def test_uncertain_start_spreads_the_rollouts():
     # each rollout still executes the plan: 1 m along its own (perturbed) start heading
     heading = eu.final_states[:, 2]
     np.testing.assert_allclose(eu.final_states[:, :2], np.stack([np.cos(heading), np.sin(heading)], 1), atol=0.04)
+
+
+def test_starts_where_the_robot_cannot_stand_are_dropped_with_eu_free_start():
+    """A belief 10 cm unsure in x next to a wall at x = 0.1 (the robot stands at x = 0): the
+    rollouts that start beyond the wall make Algorithm 1 refuse every path; conditioned on
+    the robot standing free (start_free), a drive away from the wall is feasible and every
+    kept rollout starts on the free side."""
+    q0 = np.array([0.0, 0.0, np.pi, 0, 0.3, 0, 0, 0])
+    controls = np.zeros((20, 7))
+    controls[:, 0] = 0.2  # 0.4 m away from the wall
+    exact = NoiseConfig(sigma_v=0, sigma_w=0, sigma_arm=[0] * 5)
+    free = lambda q: np.asarray(q)[..., 0] < 0.1  # noqa: E731
+    one = lambda s: np.ones(len(s))  # noqa: E731
+    cov = np.diag([0.1 ** 2, 1e-6, 1e-6])
+    plain = expected_utility(q0, controls, 0.1, 300, exact, np.random.default_rng(0), free, one, start_cov=cov)
+    assert not plain.feasible
+    kept = expected_utility(q0, controls, 0.1, 300, exact, np.random.default_rng(0), free, one, start_cov=cov,
+                            start_free=free)
+    assert kept.feasible and 150 < kept.rollouts < 300  # about 84 % of the draws are free
+    starts_x = kept.final_states[:, 0] + 0.4  # each drove 0.4 m in -x
+    assert np.all(starts_x < 0.1 + 1e-9)
+    # a belief wholly inside the wall: nothing to keep
+    inside = expected_utility(q0 + np.array([0.5, 0, 0, 0, 0, 0, 0, 0]), controls, 0.1, 100, exact,
+                              np.random.default_rng(0), free, one, start_cov=np.diag([1e-4, 1e-6, 1e-6]),
+                              start_free=free)
+    assert not inside.feasible and inside.rollouts == 0

@@ -77,7 +77,8 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
                      rng: np.random.Generator, state_free: Callable[[np.ndarray], np.ndarray],
                      utility: Callable[[np.ndarray], np.ndarray], chunk: int = 100,
                      weighting: str = "probability", max_collision_rate: float = 0.0,
-                     start_cov: np.ndarray | None = None, block_free=None) -> ExpectedUtility:
+                     start_cov: np.ndarray | None = None, block_free=None,
+                     start_free: Callable[[np.ndarray], np.ndarray] | None = None) -> ExpectedUtility:
     """Algorithm 1. state_free(states (N, 8)) -> bool (N,); utility(final states (k, 8)) -> (k,);
     weighting "mean" or "probability" (see the module docstring); max_collision_rate: the
     share of colliding rollouts a feasible candidate may have (0: none, Algorithm 1);
@@ -90,7 +91,11 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     states of c rollouts at the steps `steps` (1..m) of the plan; with it and no collision
     allowed, each chunk of rollouts is checked coarse to fine (their final states, every
     COARSE_STEP-th step, the rest) and stops at the first colliding rollout: the verdict is the
-    same, `collided_rollouts` then counts the colliding rollouts found before it stopped."""
+    same, `collided_rollouts` then counts the colliding rollouts found before it stopped.
+    start_free(states (k, 8)) -> bool (k,), optional, with a start_cov: the rollouts whose
+    start (a draw of the belief's spread) collides are dropped, since the robot stands free
+    (the belief conditioned on no collision); the candidate is unfeasible when every start
+    collides, and `rollouts` counts those kept."""
     if weighting not in ("mean", "probability"):
         raise ValueError(f"weighting must be 'mean' or 'probability', got {weighting!r}")
     if not 0.0 <= max_collision_rate < 1.0:
@@ -103,6 +108,11 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         L = np.linalg.cholesky(np.asarray(start_cov, float) + EXACT_POSE_VAR * np.eye(3))
         z = sample_truncated_normal(rng, np.ones(3), noise.beta, (k,))  # (k, 3) standard draws
         q0 = apply_corrections(q0, z @ L.T)
+        if start_free is not None:  # only the starts where the robot can stand
+            keep = np.asarray(start_free(q0), bool)
+            if not keep.any():
+                return ExpectedUtility(False, 0.0, 0, 0, 0)
+            q0, z, eps, k = q0[keep], z[keep], eps[keep], int(keep.sum())
     states = rollout(q0, controls[None] + eps, dt)  # (k, m+1, 8)
     allowed = int(math.floor(max_collision_rate * k + 1e-9))  # colliding rollouts tolerated
     ok = np.ones(k, bool)

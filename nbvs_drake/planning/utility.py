@@ -146,14 +146,15 @@ class ExpectedUtilityScore:
         free at every state (Algorithm 1's feasibility, no collision allowed): the check of
         a path no expected utility scores (mission.recovery_rollouts)."""
         eu = self._expected_leg(PlanRequest(None, states[0], rng, cov), controls, states, obstacles, cov,
-                                lambda s: np.ones(len(s)), k=k, max_collision_rate=0.0)
+                                lambda s: np.ones(len(s)), k=k, max_collision_rate=0.0, free_start=True)
         return eu.feasible
 
     def _expected_leg(self, request: PlanRequest, controls: np.ndarray, states: np.ndarray, obstacles: ObstacleModel,
                       start_cov, final_utility, escape: bool = True, k: int | None = None,
-                      max_collision_rate: float | None = None):
+                      max_collision_rate: float | None = None, free_start: bool | None = None):
         """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
-        states (m+1, 8); k and max_collision_rate default to the planner's."""
+        states (m+1, 8); k, max_collision_rate and free_start (planner.eu_free_start) default
+        to the planner's."""
         p = self.sc.planner
         k = p.eu_samples if k is None else k
         rate = p.eu_max_collision_rate if max_collision_rate is None else max_collision_rate
@@ -180,7 +181,8 @@ class ExpectedUtilityScore:
             states[0], controls, self.sc.robot.control_dt, k, self.sc.noise, request.rng,
             free, final_utility,
             weighting=p.eu_weighting, max_collision_rate=rate, start_cov=start_cov,
-            block_free=block_free if self.motion.bulk_checks else None)
+            block_free=block_free if self.motion.bulk_checks else None,
+            start_free=obstacles.free if (p.eu_free_start if free_start is None else free_start) else None)
 
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):
         """The utility of a rollout's final state when views are verified (mission.verify_views,

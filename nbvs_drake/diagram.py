@@ -99,9 +99,9 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     loc = builder.AddNamedSystem("localisation", Localisation(sc, kin, q0, dt))
     mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
     recovery = None
-    if sc.mission.verify_views and hasattr(planner_impl, "motion") and hasattr(planner_impl, "obstacles"):
-        from .planning.recovery import Recovery
-        recovery = Recovery(sc, kin, planner_impl.motion, planner_impl.obstacles)
+    if sc.mission.verify_views:
+        from .planning import make_recovery
+        recovery = make_recovery(sc, kin, planner_impl)
     planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0, recovery))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
     fusion = builder.AddNamedSystem("surface_fusion", SurfaceFusion(sc, dt))

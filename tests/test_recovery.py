@@ -302,12 +302,12 @@ def test_recovery_rollouts_reject_a_path_that_the_belief_s_spread_drives_into_th
     is free, also shifted by the +-2 cm margins; with the belief 5 cm unsure along the drive
     its rollouts reach the table and the path is refused, with the registration's 1 cm
     spread it is kept."""
-    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning import make_planner, make_recovery
     from nbvs_drake.planning.recovery import Recovery
     _, omap = first_scan_map
     sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true", "mission.recovery_rollouts=200"])
     impl = make_planner(sc, kin)
-    rec = Recovery(sc, kin, impl.motion, impl.obstacles)
+    rec = make_recovery(sc, kin, impl)
     obs = impl.obstacles.for_map(omap)
     q0 = np.array(sc.robot.start, float)
     line = np.repeat(q0[None], 400, axis=0)

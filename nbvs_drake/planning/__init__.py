@@ -43,3 +43,17 @@ def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True, truth_mesh=
         from .view_sampling import ClusterViewGenerator
         generator = ClusterViewGenerator(sc, kin, sampler)
     return RandomSamplingPlanner(sc, generator, evaluator, obstacles, motion, utility, overlap_h)
+
+
+def make_recovery(sc, kin, planner):
+    """The verified views' recovery planner (planning/recovery.py) for a planner that has a
+    motion planner and per-plan obstacles, with the rollout checks of
+    mission.recovery_rollouts; None when the planner has neither."""
+    if not (hasattr(planner, "motion") and hasattr(planner, "obstacles")):
+        return None
+    from .recovery import Recovery
+    checker = None
+    if sc.mission.recovery_rollouts > 0:
+        from .utility import ExpectedUtilityScore
+        checker = ExpectedUtilityScore(sc, None, planner.motion, None)
+    return Recovery(sc, kin, planner.motion, planner.obstacles, checker)

@@ -145,17 +145,16 @@ class Recovery:
     """Plans the corrective motions of verified views (module docstring) with the strategy's
     motion planner and per-plan obstacles."""
 
-    def __init__(self, sc: Scenario, kin: RobotKinematics, motion, obstacles):
+    def __init__(self, sc: Scenario, kin: RobotKinematics, motion, obstacles, checker=None):
+        """checker: what checks a path's rollouts under the noise (`rollouts_free`, e.g. an
+        `ExpectedUtilityScore`; `make_recovery` gives one with mission.recovery_rollouts)."""
         self.sc = sc
         self.kin = kin
         self.motion = motion
         self.obstacles = obstacles
         self._center = 0.5 * (np.asarray(sc.scene.bbox_min, float) + np.asarray(sc.scene.bbox_max, float))
-        self._checker = None
+        self._checker = checker if sc.mission.recovery_rollouts > 0 else None
         self._checks = 0  # rollout checks so far: each draws from its own seeded generator
-        if sc.mission.recovery_rollouts > 0:
-            from .utility import ExpectedUtilityScore
-            self._checker = ExpectedUtilityScore(sc, None, motion, None)
 
     #: the pose error a registered belief may still have (m, rad): a recovery path must stay
     #: free with its base moved by this much either way (`_direct`)

@@ -225,6 +225,10 @@ class PlannerConfig:
     map_obstacles: str = "wbox"
     max_obstacle_boxes: int = 300
     ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
+    #: the known environment (the table, the chairs) occludes the views' rays outside the map:
+    #: a ray that meets a chair before W_box's map sees the chair (uniform ray tracing only,
+    #: hrt_a = 0). False: the map alone decides what a view sees, as in the papers' open scene
+    view_occluders: bool = False
     #: hierarchical ray tracing resolution parameter a (Vasquez-Gomez et al. 2017 §5.4): 0 = uniform ray
     #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
     hrt_a: int = 0
@@ -522,6 +526,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.max_obstacle_boxes >= 1, f"planner.max_obstacle_boxes must be >= 1, got {p.max_obstacle_boxes}")
     _require(0 <= p.hrt_a <= 4, f"planner.hrt_a must be in 0..4, got {p.hrt_a}")
     _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
+    _require(not (p.view_occluders and p.hrt_a > 0),
+             f"planner.view_occluders needs uniform ray tracing (planner.hrt_a = 0), got hrt_a = {p.hrt_a}")
     _require(p.max_view_distance == 0 or p.max_view_distance > rs.z_near,
              f"planner.max_view_distance must be 0 or beyond the sensor's z_near ({rs.z_near}), "
              f"got {p.max_view_distance}")

@@ -441,3 +441,85 @@ def test_camera_inside_wbox_next_to_unknown_space_predicts_nothing_behind_it():
     o2 = np.array([-0.3, 0.2, 0.2])
     met2 = VM.evaluate_views(lo, np.zeros(3), res, o2[None], R[None], dcam, tn, tf, L_FREE, L_OCC, 1)[0]
     assert met2[VM.M_BLIND_RAYS] == 0 and met2[VM.M_UN_O] > 0 and met2[VM.M_RAYS] > 0
+
+
+def _inside_box(p, row):
+    c, h, cs, sn = row[:3], row[3:6], row[6], row[7]
+    d = p - c
+    loc = np.stack([cs * d[..., 0] + sn * d[..., 1], -sn * d[..., 0] + cs * d[..., 1], d[..., 2]], -1)
+    return np.all(np.abs(loc) <= h, axis=-1)
+
+
+def test_first_solid_is_where_the_ray_enters_the_nearest_box():
+    rng = np.random.default_rng(4)
+    occ = np.array([[1.0, 0.2, 0.5, 0.2, 0.1, 0.3, np.cos(0.7), np.sin(0.7)],
+                    [2.0, -0.1, 0.4, 0.05, 0.3, 0.2, np.cos(-0.3), np.sin(-0.3)]])
+    ts = np.linspace(0.0, 3.0, 30001)
+    hits = 0
+    for _ in range(300):
+        o = rng.uniform([-0.5, -0.5, 0.0], [0.0, 0.5, 1.0])
+        d = np.array([1.0, *rng.uniform(-0.4, 0.4, 2)])
+        d /= np.linalg.norm(d)
+        got = VM._first_solid(occ, *o, *d, 3.0)
+        P = o + ts[:, None] * d
+        inside = _inside_box(P, occ[0]) | _inside_box(P, occ[1])
+        want = ts[np.argmax(inside)] if inside.any() else 3.0
+        hits += inside.any()
+        assert got == pytest.approx(want, abs=2e-4)
+    assert 50 < hits < 250  # both hits and misses
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_occluders_end_the_rays_that_meet_a_known_solid_before_the_grid(seed):
+    """planner.view_occluders: with boxes between the camera and the grid, the metrics are
+    those of the rays that miss the boxes (brute force with the blocked rays dropped);
+    without boxes nothing changes."""
+    rng = np.random.default_rng(seed)
+    lo = _random_map(rng)
+    res = 0.1
+    bmin = np.array([0.0, 0.0, 0.0])
+    o = np.array([-0.35, 0.41, 0.33]) + rng.uniform(-0.05, 0.05, 3)
+    targets = rng.uniform([0, 0, 0], np.array(lo.shape) * res, size=(60, 3))
+    dirs = targets - o
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    t_near = np.full(len(dirs), 0.05)
+    t_far = np.full(len(dirs), 2.0)
+    yaw = rng.uniform(-1, 1)
+    c = o + np.array([0.15, *rng.uniform(-0.04, 0.04, 2)])  # in front of the camera, outside the grid
+    occ = np.array([[*c, 0.02, 0.04, 0.04, np.cos(yaw), np.sin(yaw)]])
+    blocked = np.array([VM._first_solid(occ, *o, *d, 9.0) < 9.0 for d in dirs])
+    assert 5 < blocked.sum() < len(dirs) - 5
+    kw = dict(near_unknown_blinds=True, surface_q=0.07)
+    got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
+                            occluders=occ, **kw)[0]
+    ref = _brute(lo, bmin, res, o, dirs[~blocked], t_near[~blocked], t_far[~blocked], q=0.07)
+    for m, v in ref.items():
+        assert got[m] == pytest.approx(v, rel=1e-5, abs=1e-4), (m, got[m], v)
+    plain = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1, **kw)
+    none = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
+                             occluders=np.zeros((0, 8)), **kw)
+    np.testing.assert_array_equal(plain, none)
+
+
+def test_the_boxes_kept_for_a_view_are_all_that_can_stop_its_rays_into_the_grid():
+    """_occluders_in_view drops only boxes no ray from the camera into the grid can meet."""
+    rng = np.random.default_rng(7)
+    bmin, emax = np.array([-0.3, -0.3, 0.7]), np.array([0.3, 0.3, 1.2])
+    n_box = 40
+    occ = np.zeros((n_box, 8))
+    occ[:, :3] = rng.uniform([-2, -2, 0], [2, 2, 1.5], (n_box, 3))
+    occ[:, 3:6] = rng.uniform(0.02, 0.25, (n_box, 3))
+    yaw = rng.uniform(-np.pi, np.pi, n_box)
+    occ[:, 6], occ[:, 7] = np.cos(yaw), np.sin(yaw)
+    dropped_some = False
+    for _ in range(20):
+        o = rng.uniform([-2, -2, 0.3], [2, 2, 1.5])
+        kept = VM._occluders_in_view(occ, *o, bmin, *emax)
+        dropped_some |= len(kept) < n_box
+        pts = rng.uniform(bmin, emax, (400, 3))  # rays to points of the grid
+        for p in pts:
+            d = p - o
+            L = np.linalg.norm(d)
+            d = d / L
+            assert VM._first_solid(occ, *o, *d, L) == VM._first_solid(kept, *o, *d, L)
+    assert dropped_some

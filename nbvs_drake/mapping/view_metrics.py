@@ -231,10 +231,66 @@ def _cover_gain(density, cov_k, pitch, stride2, t):
     return stride2 * s2 * (math.exp(-cov_k * density) - math.exp(-cov_k * (density + 1.0 / s2)))
 
 
+@nb.njit(cache=True, inline="always")
+def _first_solid(occ, ox, oy, oz, dx, dy, dz, t_max):
+    """The range along the ray (o, d) at which it enters the first of the known solids `occ`
+    (M, 8: centre, half size, cos and sin of the yaw about z), or t_max; a solid the ray
+    starts in is ignored (the camera is never inside one)."""
+    t_hit = t_max
+    for b in range(occ.shape[0]):
+        c, s = occ[b, 6], occ[b, 7]
+        px, py, pz = ox - occ[b, 0], oy - occ[b, 1], oz - occ[b, 2]
+        lo3 = (c * px + s * py, -s * px + c * py, pz)
+        ld3 = (c * dx + s * dy, -s * dx + c * dy, dz)
+        t_in, t_out = -1e300, 1e300
+        miss = False
+        for a in range(3):
+            h, l, d = occ[b, 3 + a], lo3[a], ld3[a]
+            if abs(d) < 1e-12:
+                if abs(l) > h:
+                    miss = True
+                    break
+                continue
+            t1, t2 = (-h - l) / d, (h - l) / d
+            if t1 > t2:
+                t1, t2 = t2, t1
+            t_in, t_out = max(t_in, t1), min(t_out, t2)
+        if not miss and t_in <= t_out and t_in > 0.0 and t_in < t_hit:
+            t_hit = t_in
+    return t_hit
+
+
+@nb.njit(cache=True)
+def _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez):
+    """The rows of `occ` that may stand between the camera and the grid: a box's bounding
+    sphere that meets the cone from the camera around the grid's bounding sphere, and not
+    beyond the grid (conservative: the rays' verdicts are those of all the boxes)."""
+    if occ.shape[0] == 0:
+        return occ
+    gx, gy, gz = 0.5 * (bmin[0] + ex), 0.5 * (bmin[1] + ey), 0.5 * (bmin[2] + ez)
+    rg = 0.5 * math.sqrt((ex - bmin[0]) ** 2 + (ey - bmin[1]) ** 2 + (ez - bmin[2]) ** 2)
+    vx, vy, vz = gx - ox, gy - oy, gz - oz
+    dg = math.sqrt(vx * vx + vy * vy + vz * vz)
+    keep = np.zeros(occ.shape[0], np.bool_)
+    for b in range(occ.shape[0]):
+        rb = math.sqrt(occ[b, 3] ** 2 + occ[b, 4] ** 2 + occ[b, 5] ** 2)
+        cx, cy, cz = occ[b, 0] - ox, occ[b, 1] - oy, occ[b, 2] - oz
+        dc = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if dc <= rb or dg <= rg:  # the camera at the box or in the grid's sphere: keep it
+            keep[b] = True
+            continue
+        if dc - rb > dg + rg:  # wholly beyond the grid
+            continue
+        cosang = (cx * vx + cy * vy + cz * vz) / (dc * dg)
+        ang = math.acos(max(-1.0, min(1.0, cosang)))
+        keep[b] = ang <= math.asin(rg / dg) + math.asin(rb / dc)
+    return occ[keep]
+
+
 @nb.njit(cache=True)
 def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
                    unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2,
-                   near, near_q):
+                   near, near_q, occ):
     """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
     collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks)."""
@@ -254,11 +310,16 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     e_new = 0.0
     cover = 0.0
     with_cover = dens.shape[0] == nx
+    occ = _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez)
     for r in range(dirs_cam.shape[0]):
         # from the camera: [t0, t1] is the ray's part in the grid up to the maximum range
         dx, dy, dz, t0, t1 = world_ray(R, dirs_cam[r], 0.0, t_far[r], ox, oy, oz, bmin, ex, ey, ez)
         if t0 > t1:
             continue
+        if occ.shape[0]:  # a known solid (a chair) in front of the grid ends the ray there
+            t1 = min(t1, _first_solid(occ, ox, oy, oz, dx, dy, dz, t1))
+            if t0 > t1:
+                continue
         if blinded_within(cls, bmin, res, ox, oy, oz, dx, dy, dz, t0, t_near[r], t1, unknown_blinds):
             n_blind += 1
             continue
@@ -378,7 +439,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
 @nb.njit(cache=True, parallel=True)
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                    n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
-                   density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0):
+                   density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0, occluders=None):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the
@@ -396,6 +457,9 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     ray `stride` (pixels per ray along a row); `near` (bool grid) marks the unknown voxels
     that may hold new surface, each with the chance `near_q` (planning.views.near_surface;
     None: every unknown voxel, with the chance `surface_q`).
+    `occluders` (M, 8: centre, half size, cos and sin of the yaw; `known_occluders`): known
+    solids outside the grid (chairs) that end a ray where it enters them; None: the grid
+    alone decides what a ray sees.
     Every ray is traced voxel by voxel (exact DDA); views are split into `n_chunks` chunks
     evaluated in parallel."""
     n = cam_pos.shape[0]
@@ -413,6 +477,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         else:
             nr = near
     stride2 = float(stride * stride)
+    occ = np.zeros((0, 8)) if occluders is None else occluders
     nc = U.size
     out = np.zeros((n, N_METRICS))
     ctag = np.zeros((n_chunks, nc), np.int32)
@@ -427,8 +492,17 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         for v in range(lo, hi):
             _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
                            max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
-                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q)
+                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q, occ)
     return out
+
+
+def known_occluders(sc) -> np.ndarray:
+    """The known environment's boxes but the floor (the table, its legs, the chairs) as
+    `evaluate_views`' occluders (M, 8)."""
+    from ..scene import environment_boxes
+    rows = [(*b.center, *(0.5 * np.asarray(b.size, float)), np.cos(b.yaw), np.sin(b.yaw))
+            for b in environment_boxes(sc) if b.name != "floor"]
+    return np.asarray(rows, float).reshape(-1, 8)
 
 
 # --------------------------------------------------------------------------------------

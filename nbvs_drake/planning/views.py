@@ -41,6 +41,8 @@ class ViewEvaluator:
         self.coverage_radius = sc.planner.coverage_radius if sc.planner.metric == "coverage" else 0.0
         import numba
         self.n_chunks = max(1, numba.get_num_threads())
+        #: planner.view_occluders: the known environment's boxes that end the views' rays
+        self.occluders = K.known_occluders(sc) if sc.planner.view_occluders else None
 
     def evaluate(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
         """Metrics (N, K.N_METRICS) of the states q (N, 8); see view_metrics.M_*."""
@@ -107,6 +109,8 @@ class ViewEvaluator:
         kw = dict(near_unknown_blinds=self.near_unknown_blinds, surface_q=surface_probability(omap))
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
+        if self.occluders is not None:
+            kw.update(occluders=self.occluders)
         if self.coverage_radius > 0:
             kw.update(density=self._density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
                       stride=self.stride)

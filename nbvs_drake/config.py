@@ -288,9 +288,6 @@ class MissionConfig:
     #: verify_views (this project's planner under noise), else 0 (docs/decisions.md, "The
     #: registration's residual cap")
     registration_residual_cap: float = -1.0
-    #: reject a registration whose correction lies beyond this squared Mahalanobis distance
-    #: of the motion prior (chi^2 with 3 degrees of freedom: 14.2 holds 99.7 %); 0: off
-    registration_gate: float = 0.0
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0
@@ -546,7 +543,6 @@ def validate(sc: Scenario) -> Scenario:
              f"{mi.view_tolerance_rad}")
     _require(mi.max_recoveries >= 0, f"mission.max_recoveries must be >= 0, got {mi.max_recoveries}")
     _require(mi.recovery_rollouts >= 0, f"mission.recovery_rollouts must be >= 0, got {mi.recovery_rollouts}")
-    _require(mi.registration_gate >= 0, f"mission.registration_gate must be >= 0, got {mi.registration_gate}")
     _require(mi.on_collision in ("stop", "continue"),
              f"mission.on_collision must be 'stop' or 'continue', got {mi.on_collision!r}")
     _require(mi.stop_unknown_voxels >= 0, f"mission.stop_unknown_voxels must be >= 0, got {mi.stop_unknown_voxels}")

@@ -50,10 +50,6 @@ class RegistrationConfig:
     #: m: the fit caps each point's residual here (0: at the last stage's correspondence
     #: distance, 2 cm, which is also what a point with no model point near costs)
     residual_cap: float = 0.0
-    #: reject a correction xi whose squared Mahalanobis distance xi^T C^-1 xi under the motion
-    #: prior C exceeds this (0: off): the drift the prior describes is truncated at 3 sigma
-    #: per step, so a larger correction is more likely a wrong fit than the true pose
-    max_prior_d2: float = 0.0
     see_through_tol: float = 0.03  #: m a ray may run inside a known solid (edges, noise)
     #: start grid along the prior's two main axes (in its standard deviations)
     grid_major: tuple = (-2.0, -1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0)
@@ -375,15 +371,4 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
         return IcpResult(Correction(), fitness, rmse, False, "low_fitness", n_model, n_scan, sig)
     if rmse > cfg.max_rmse:
         return IcpResult(Correction(), fitness, rmse, False, "high_rmse", n_model, n_scan, sig)
-    if cfg.max_prior_d2 > 0 and prior_d2(xi, prior_cov) > cfg.max_prior_d2:
-        return IcpResult(Correction(), fitness, rmse, False, "outside_prior", n_model, n_scan, sig)
     return IcpResult(corr, fitness, rmse, True, "", n_model, n_scan, sig)
-
-
-def prior_d2(xi: np.ndarray, prior_cov: np.ndarray) -> float:
-    """Squared Mahalanobis distance of the correction xi (dx, dy, dyaw) under the prior
-    covariance (3, 3); components the prior holds exact (variance below 1e-12) count only
-    when the correction moves them."""
-    xi = np.asarray(xi, float)
-    C = np.asarray(prior_cov, float) + 1e-12 * np.eye(3)
-    return float(xi @ np.linalg.solve(C, xi))

@@ -118,8 +118,7 @@ class Localisation(LeafSystem):
     def __init__(self, sc: Scenario, kin: RobotKinematics, q0, dt: float):
         super().__init__()
         self.sc = sc
-        self.reg_cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap(),
-                                          max_prior_d2=sc.mission.registration_gate)
+        self.reg_cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap())
         self._solids = KnownSolids.of(sc)
         self._dirs = ray_directions(sc.sensor, 1)[0]
         self._z_far = resolve_sensor(sc.sensor).z_far

@@ -91,18 +91,24 @@ def _random_map(rng, dims=(9, 8, 7)):
     return lo
 
 
-@pytest.mark.parametrize("seed", range(6))
-def test_kernel_matches_brute_force(seed):
-    rng = np.random.default_rng(seed)
+def _camera_and_rays(rng, n_rays):
+    """A random map (0.1 m voxels from the origin), a camera just outside it and unit rays
+    from the camera towards random points of the grid (identity camera rotation), each with
+    a minimum range of 5 cm: (logodds, res, bmin, o, dirs, t_near)."""
     lo = _random_map(rng)
     res = 0.1
     bmin = np.array([0.0, 0.0, 0.0])
     o = np.array([-0.35, 0.41, 0.33]) + rng.uniform(-0.05, 0.05, 3)
-    # rays from the camera towards random points of the grid (identity camera rotation)
-    targets = rng.uniform([0, 0, 0], np.array(lo.shape) * res, size=(40, 3))
+    targets = rng.uniform([0, 0, 0], np.array(lo.shape) * res, size=(n_rays, 3))
     dirs = targets - o
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    t_near = np.full(len(dirs), 0.05)
+    return lo, res, bmin, o, dirs, np.full(n_rays, 0.05)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_kernel_matches_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    lo, res, bmin, o, dirs, t_near = _camera_and_rays(rng, 40)
     t_far = np.full(len(dirs), rng.uniform(0.8, 2.0))
     got = VM.evaluate_views(lo, bmin, res, o[None], np.eye(3)[None], dirs, t_near, t_far, L_FREE, L_OCC, 1,
                             near_unknown_blinds=True, surface_q=0.07)[0]
@@ -475,14 +481,7 @@ def test_occluders_end_the_rays_that_meet_a_known_solid_before_the_grid(seed):
     those of the rays that miss the boxes (brute force with the blocked rays dropped);
     without boxes nothing changes."""
     rng = np.random.default_rng(seed)
-    lo = _random_map(rng)
-    res = 0.1
-    bmin = np.array([0.0, 0.0, 0.0])
-    o = np.array([-0.35, 0.41, 0.33]) + rng.uniform(-0.05, 0.05, 3)
-    targets = rng.uniform([0, 0, 0], np.array(lo.shape) * res, size=(60, 3))
-    dirs = targets - o
-    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    t_near = np.full(len(dirs), 0.05)
+    lo, res, bmin, o, dirs, t_near = _camera_and_rays(rng, 60)
     t_far = np.full(len(dirs), 2.0)
     yaw = rng.uniform(-1, 1)
     c = o + np.array([0.15, *rng.uniform(-0.04, 0.04, 2)])  # in front of the camera, outside the grid

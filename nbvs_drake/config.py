@@ -273,9 +273,6 @@ class MissionConfig:
     #: there corrects the heading before the drive (the turn's heading error, up to ~0.4 rad
     #: after a half turn under Table 4, would otherwise move the base sideways over the drive)
     leg_turns: bool = False
-    #: with legs: a drive longer than this (m) is cut into legs of this length, each with its
-    #: frame (0: off)
-    max_leg_drive: float = 0.0
     #: with verify_views under noise: a recovery path (the next leg, a correction, a
     #: re-localisation view) must also be free in this many rollouts of its own controls
     #: from the belief's spread (at least the registration's; Algorithm 1's rule, no
@@ -546,7 +543,6 @@ def validate(sc: Scenario) -> Scenario:
              f"{mi.view_tolerance_rad}")
     _require(mi.max_recoveries >= 0, f"mission.max_recoveries must be >= 0, got {mi.max_recoveries}")
     _require(mi.recovery_rollouts >= 0, f"mission.recovery_rollouts must be >= 0, got {mi.recovery_rollouts}")
-    _require(mi.max_leg_drive >= 0, f"mission.max_leg_drive must be >= 0, got {mi.max_leg_drive}")
     _require(mi.on_collision in ("stop", "continue"),
              f"mission.on_collision must be 'stop' or 'continue', got {mi.on_collision!r}")
     _require(mi.stop_unknown_voxels >= 0, f"mission.stop_unknown_voxels must be >= 0, got {mi.stop_unknown_voxels}")

@@ -144,17 +144,13 @@ def plans_in_legs(sc) -> bool:
     return bool(mi.legs and mi.verify_views and np.any(noise_sigmas(sc.noise) > 0))
 
 
-def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True,
-             max_drive_steps: int = 0) -> list[int]:
+def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True) -> list[int]:
     """The legs of a plan (mission.legs): the end index (exclusive, into the controls) of
     each, one after every drive phase (v != 0) that more base motion follows, and the last
     at m. A plan with one drive, or none, is one leg unless a turn follows its drive.
     min_turn_steps > 0 (mission.leg_turns): a leg also ends after every turn in place
     (omega != 0, v = 0) of at least that many steps that a drive follows, so the frame there
-    fixes the heading before the drive. after_drives=False: only those ends after turns.
-    max_drive_steps > 0 (mission.max_leg_drive): a drive of more steps is cut every that many
-    steps, so the heading error a leg starts with moves the base sideways over a bounded
-    drive."""
+    fixes the heading before the drive. after_drives=False: only those ends after turns."""
     c = np.asarray(controls, float).reshape(-1, NU)
     m = len(c)
     drive = c[:, 0] != 0.0
@@ -164,22 +160,11 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
     run = np.zeros(m, int)  # steps of the turn that ends at step i
     if m:
         later[:-1] = np.cumsum(base[::-1])[::-1][1:] > 0
-    driven = np.zeros(m, int)  # steps of the drive that ends at step i
     for i in range(m):
         run[i] = (run[i - 1] + 1 if i else 1) if turn[i] else 0
-        driven[i] = (driven[i - 1] + 1 if i else 1) if drive[i] else 0
     ends = [i + 1 for i in range(m - 1) if (after_drives and drive[i] and not drive[i + 1] and later[i])
-            or (min_turn_steps > 0 and turn[i] and drive[i + 1] and run[i] >= min_turn_steps)
-            or (max_drive_steps > 0 and drive[i] and drive[i + 1] and driven[i] % max_drive_steps == 0)]
+            or (min_turn_steps > 0 and turn[i] and drive[i + 1] and run[i] >= min_turn_steps)]
     return ends + [m]
-
-
-def max_leg_drive_steps(sc) -> int:
-    """mission.max_leg_drive in control steps at the steering's speed (0: off)."""
-    d = sc.mission.max_leg_drive
-    if d <= 0:
-        return 0
-    return max(1, int(math.ceil(d / (sc.robot.max_linear_velocity * sc.robot.control_dt) - 1e-9)))
 
 
 def min_leg_turn(sc) -> int:
@@ -199,7 +184,7 @@ def plan_legs(sc, controls: np.ndarray) -> list[int]:
     """Where a plan's legs end: `leg_ends` when it runs in legs (`plans_in_legs`), else [m]."""
     if not plans_in_legs(sc):
         return [len(np.asarray(controls).reshape(-1, NU))]
-    return leg_ends(controls, min_leg_turn(sc), max_drive_steps=max_leg_drive_steps(sc))
+    return leg_ends(controls, min_leg_turn(sc))
 
 
 # --------------------------------------------------------------------------------------

@@ -321,19 +321,3 @@ def test_recovery_rollouts_reject_a_path_that_the_belief_s_spread_drives_into_th
     assert rec._direct(q0, goal, obs, np.diag([0.05 ** 2, 0.0, 0.0])) is None
     assert Recovery(load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"]), kin, impl.motion,
                     impl.obstacles)._direct(q0, goal, obs, np.diag([0.05 ** 2, 0.0, 0.0])) is not None
-
-
-def test_with_max_leg_drive_a_long_drive_is_cut_into_legs_of_that_length():
-    from nbvs_drake.motion import leg_ends, max_leg_drive_steps, plan_legs
-    c = np.zeros((60, 7))
-    c[:10, 1] = 0.6  # turn, drive 40 steps, turn
-    c[10:50, 0] = 0.3
-    c[50:, 1] = -0.6
-    assert leg_ends(c) == [50, 60]
-    assert leg_ends(c, 5, max_drive_steps=15) == [10, 25, 40, 50, 60]
-    assert leg_ends(c, max_drive_steps=40) == [50, 60]  # the drive's own end is already one
-    sc = load_scenario("cluttered_room", settings=["mission.verify_views=true", "mission.legs=true",
-                                                    "mission.max_leg_drive=0.45"])
-    assert max_leg_drive_steps(sc) == 15  # 0.45 m at 0.3 m/s and 0.1 s per step
-    assert plan_legs(sc, c) == [25, 40, 50, 60]
-    assert max_leg_drive_steps(load_scenario("cluttered_room")) == 0

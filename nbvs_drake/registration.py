@@ -139,11 +139,8 @@ class KnownSolids:
 
     @staticmethod
     def of(sc: Scenario) -> "KnownSolids":
-        from .scene import environment_boxes
-        boxes = environment_boxes(sc)
-        return KnownSolids(np.array([b.center for b in boxes], float).reshape(-1, 3),
-                           0.5 * np.array([b.size for b in boxes], float).reshape(-1, 3),
-                           np.array([b.yaw for b in boxes], float))
+        from .scene import box_arrays
+        return KnownSolids(*box_arrays(sc))
 
     def seen_through(self, origin: np.ndarray, P: np.ndarray, tol: float) -> np.ndarray:
         """Whether the ray from `origin` to each return runs more than `tol` through a solid:

@@ -40,6 +40,15 @@ def environment_boxes(sc: Scenario) -> list[Box]:
     return boxes
 
 
+def box_arrays(sc: Scenario, floor: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The environment's boxes (`environment_boxes`, without the floor when `floor` is
+    False) as arrays: centres (M, 3), half sizes (M, 3) and yaws about z (M,)."""
+    boxes = [b for b in environment_boxes(sc) if floor or b.name != "floor"]
+    return (np.array([b.center for b in boxes], float).reshape(-1, 3),
+            0.5 * np.array([b.size for b in boxes], float).reshape(-1, 3),
+            np.array([b.yaw for b in boxes], float))
+
+
 def chair_boxes(sc: Scenario) -> list[Box]:
     """Nine chairs on a ring around the table (Vasquez-Gomez et al. 2017 Fig. 13): seat + backrest each, in ten
     slots 36 deg apart with the slot on the -x side (where the robot starts) left open."""

@@ -499,10 +499,9 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
 def known_occluders(sc) -> np.ndarray:
     """The known environment's boxes but the floor (the table, its legs, the chairs) as
     `evaluate_views`' occluders (M, 8)."""
-    from ..scene import environment_boxes
-    rows = [(*b.center, *(0.5 * np.asarray(b.size, float)), np.cos(b.yaw), np.sin(b.yaw))
-            for b in environment_boxes(sc) if b.name != "floor"]
-    return np.asarray(rows, float).reshape(-1, 8)
+    from ..scene import box_arrays
+    centers, half, yaw = box_arrays(sc, floor=False)
+    return np.ascontiguousarray(np.c_[centers, half, np.cos(yaw), np.sin(yaw)])
 
 
 # --------------------------------------------------------------------------------------

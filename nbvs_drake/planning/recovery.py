@@ -180,9 +180,7 @@ class Recovery:
         """mission.recovery_rollouts > 0: whether that many rollouts of `controls` are free."""
         if self._checker is None:
             return True
-        from ..motion import REGISTERED_SIGMA
-        floor = np.diag(np.square(REGISTERED_SIGMA))
-        cov = floor if cov is None else np.asarray(cov, float) + floor
+        cov = self._checker.registered_cov(cov)
         self._checks += 1
         rng = np.random.default_rng([self.sc.seed, 23, self._checks])
         return self._checker.rollouts_free(controls, states, obs, cov, rng, self.sc.mission.recovery_rollouts)

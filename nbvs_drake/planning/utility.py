@@ -89,12 +89,12 @@ class ExpectedUtilityScore:
         return lambda s, steps: bulk.rollout_verdicts(np.ascontiguousarray(s, float), nominal[steps - 1],
                                                       c[steps - 1], r[steps - 1], *cert.model, col.counter)
 
-    #: with verified views, the rollouts of every leg start from the belief spread by the
-    #: registration's own error (motion.REGISTERED_SIGMA)
-    REGISTERED_SIGMA = REGISTERED_SIGMA
-
-    def registered_cov(self) -> np.ndarray:
-        return np.diag(np.square(self.REGISTERED_SIGMA))
+    def registered_cov(self, belief_cov=None) -> np.ndarray:
+        """The registration's own spread (motion.REGISTERED_SIGMA), plus the belief's
+        `belief_cov` (3, 3) when given: with verified views every rollout starts from it, a
+        registered belief being only as good as the registration."""
+        cov = np.diag(np.square(REGISTERED_SIGMA))
+        return cov if belief_cov is None else np.asarray(belief_cov, float) + cov
 
     def leg_cov(self) -> np.ndarray:
         """The spread a later leg's rollouts start from: the registration's, and with
@@ -122,15 +122,13 @@ class ExpectedUtilityScore:
             def final_utility(s):
                 return self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration)
         ends = plan_legs(self.sc, cand.controls)
-        floor = self.registered_cov() if self.sc.mission.verify_views else None
         start, checked, collided, eu = 0, 0, 0, None
         for j, end in enumerate(ends):
             last = j == len(ends) - 1
-            cov = request.start_cov if j == 0 else None
-            if floor is not None:  # a registered belief is only as good as the registration
-                cov = floor if cov is None else np.asarray(cov, float) + floor
-                if j > 0:
-                    cov = self.leg_cov()
+            if not self.sc.mission.verify_views:
+                cov = request.start_cov if j == 0 else None
+            else:
+                cov = self.registered_cov(request.start_cov) if j == 0 else self.leg_cov()
             eu = self._expected_leg(request, cand.controls[start:end], cand.states[start:end + 1], obstacles, cov,
                                     final_utility if last else (lambda s: np.ones(len(s))), escape=j == 0)
             checked, collided = checked + eu.rollouts_checked, collided + eu.collided_rollouts

@@ -225,6 +225,12 @@ class PlannerConfig:
     map_obstacles: str = "wbox"
     max_obstacle_boxes: int = 300
     ray_stride: int = 2  #: evaluate every n-th pixel row/column when scoring views
+    #: coarse-to-fine view evaluation (planning/views.py, ViewEvaluator.evaluate_ranked): every
+    #: candidate is first scored with one ray per coarse_stride x coarse_stride pixel block,
+    #: then the best `refine_views` of that ranking again at ray_stride; the ranking's head is
+    #: exact, its tail ranked by the coarse pass. 0: every candidate at ray_stride
+    coarse_stride: int = 0
+    refine_views: int = 100  #: coarse_stride: candidates re-scored at ray_stride (>= top_k)
     #: the known environment (the table, the chairs) occludes the views' rays outside the map:
     #: a ray that meets a chair before W_box's map sees the chair (uniform ray tracing only,
     #: hrt_a = 0). False: the map alone decides what a view sees, as in the papers' open scene
@@ -521,6 +527,12 @@ def validate(sc: Scenario) -> Scenario:
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),
              f"planner.weights must be 8 numbers >= 0, got {p.weights}")
     _require(p.ray_stride >= 1, f"planner.ray_stride must be >= 1, got {p.ray_stride}")
+    _require(p.coarse_stride == 0 or p.coarse_stride > p.ray_stride,
+             f"planner.coarse_stride must be 0 (off) or more than ray_stride {p.ray_stride}, got {p.coarse_stride}")
+    _require(p.coarse_stride == 0 or p.hrt_a == 0,
+             f"planner.coarse_stride needs uniform ray tracing (planner.hrt_a = 0), got hrt_a = {p.hrt_a}")
+    _require(p.coarse_stride == 0 or p.refine_views >= p.top_k,
+             f"planner.refine_views must be >= top_k {p.top_k} with coarse_stride, got {p.refine_views}")
     _require(p.map_obstacles in ("wbox", "voxels"),
              f"planner.map_obstacles must be 'wbox' or 'voxels', got {p.map_obstacles!r}")
     _require(p.max_obstacle_boxes >= 1, f"planner.max_obstacle_boxes must be >= 1, got {p.max_obstacle_boxes}")

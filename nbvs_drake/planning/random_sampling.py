@@ -59,23 +59,35 @@ class RandomSamplingPlanner:
         stages.update(obstacles.stats)
         cand = free_candidates(generator, obstacles, rng, omap, stages, times)
 
+        un_total = max(omap.unknown_count(), 1)
+
+        def registered(m):
+            return registration_overlap(m) > self.overlap_h if self.overlap_h is not None else np.ones(len(m), bool)
+
         t = time.perf_counter()
-        met = self.evaluator.evaluate(omap, cand)
+        if p.metric == "seed001":  # its own ray casting: no coarse pass
+            met = self.evaluator.evaluate(omap, cand)
+            order = None
+        else:  # the candidates ranked by reg * info (coarse to fine with planner.coarse_stride)
+            met, order = self.evaluator.evaluate_ranked(omap, cand, lambda m: np.where(
+                registered(m), self.evaluator.information(omap, None, m, p.metric, un_total), 0.0))
         times["visibility_s"] = time.perf_counter() - t
         un, oc, post = met[:, K.M_UN_O], met[:, K.M_OC_O], met[:, K.M_N_POSTERIOR]
         stages["visibility"] = int(np.count_nonzero(met[:, K.M_RAYS] > 0))
         overlap = registration_overlap(met)
-        reg = overlap > self.overlap_h if self.overlap_h is not None else np.ones(len(cand), bool)
+        reg = registered(met)
         stages["registration"] = int(reg.sum())
-        un_total = max(omap.unknown_count(), 1)
         info = self.evaluator.information(omap, cand, met, p.metric, un_total)
         keep = reg & (info > 0)
         stages["surface"] = int(keep.sum())
         if not np.any(keep):
             return PlanResult("no_candidate", stages=stages, times=times)
 
-        ranked = np.flatnonzero(keep)
-        ranked = ranked[np.argsort(-info[ranked], kind="stable")]
+        if order is None:
+            ranked = np.flatnonzero(keep)
+            ranked = ranked[np.argsort(-info[ranked], kind="stable")]
+        else:
+            ranked = order[keep[order]]
 
         def batches():
             """Steps 7-8: the top k go to motion planning; when none of them can be reached (or,

@@ -230,7 +230,9 @@ class PlannerConfig:
     #: then the best `refine_views` of that ranking again at ray_stride; the ranking's head is
     #: exact, its tail ranked by the coarse pass. 0: every candidate at ray_stride
     coarse_stride: int = 0
-    refine_views: int = 100  #: coarse_stride: candidates re-scored at ray_stride (>= top_k)
+    #: coarse_stride: candidates re-scored at ray_stride (0: top_k, the ones motion planning
+    #: sees first; else >= top_k)
+    refine_views: int = 0
     #: the known environment (the table, the chairs) occludes the views' rays outside the map:
     #: a ray that meets a chair before W_box's map sees the chair (uniform ray tracing only,
     #: hrt_a = 0). False: the map alone decides what a view sees, as in the papers' open scene
@@ -531,8 +533,8 @@ def validate(sc: Scenario) -> Scenario:
              f"planner.coarse_stride must be 0 (off) or more than ray_stride {p.ray_stride}, got {p.coarse_stride}")
     _require(p.coarse_stride == 0 or p.hrt_a == 0,
              f"planner.coarse_stride needs uniform ray tracing (planner.hrt_a = 0), got hrt_a = {p.hrt_a}")
-    _require(p.coarse_stride == 0 or p.refine_views >= p.top_k,
-             f"planner.refine_views must be >= top_k {p.top_k} with coarse_stride, got {p.refine_views}")
+    _require(p.coarse_stride == 0 or p.refine_views == 0 or p.refine_views >= p.top_k,
+             f"planner.refine_views must be 0 (top_k) or >= top_k {p.top_k} with coarse_stride, got {p.refine_views}")
     _require(p.map_obstacles in ("wbox", "voxels"),
              f"planner.map_obstacles must be 'wbox' or 'voxels', got {p.map_obstacles!r}")
     _require(p.max_obstacle_boxes >= 1, f"planner.max_obstacle_boxes must be >= 1, got {p.max_obstacle_boxes}")

@@ -287,13 +287,28 @@ def _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez):
     return occ[keep]
 
 
+@nb.njit(cache=True, inline="always")
+def _cell_exit_before(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1):
+    """Whether the ray leaves its 4x4x4 cell before t1 (skip_cell's status 1)."""
+    xi = ti + ((3 - (i & 3)) if si > 0 else (i & 3)) * di if si != 0 else np.inf
+    xj = tj + ((3 - (j & 3)) if sj > 0 else (j & 3)) * dj if sj != 0 else np.inf
+    xk = tk + ((3 - (k & 3)) if sk > 0 else (k & 3)) * dk if sk != 0 else np.inf
+    return min(xi, xj, xk) < t1
+
+
 @nb.njit(cache=True)
 def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
                    unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2,
-                   near, near_q, occ):
+                   near, near_q, occ, occ_centres, NB, score_only):
     """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
-    collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks)."""
+    collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks).
+    When no occupied voxel (`occ_centres`) comes within the minimum range of the camera, no
+    ray can be blinded and the per-ray check is skipped (exact; only occupied voxels blind
+    unless `unknown_blinds`). `score_only`: the per-ray columns only, for a coarse pass (the
+    distinct-voxel columns stay 0): an all-unknown cell whose voxels share one entropy and are
+    all or none near known surface (`NB`, the cells' near bitmasks) is crossed at once,
+    counting the voxels the ray crosses in it."""
     nx, ny, nz = cls.shape
     cy, cz = (ny + 3) >> 2, (nz + 3) >> 2
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
@@ -311,6 +326,18 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     cover = 0.0
     with_cover = dens.shape[0] == nx
     occ = _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez)
+    check_blind = True
+    if not unknown_blinds:  # can an occupied voxel lie within the minimum range of the camera?
+        tn_max = 0.0
+        for r in range(t_near.shape[0]):
+            tn_max = max(tn_max, t_near[r])
+        reach = tn_max + 0.8660254037844386 * res  # a voxel's half diagonal
+        check_blind = False
+        for p in range(occ_centres.shape[0]):
+            wx, wy, wz = occ_centres[p, 0] - ox, occ_centres[p, 1] - oy, occ_centres[p, 2] - oz
+            if wx * wx + wy * wy + wz * wz <= reach * reach:
+                check_blind = True
+                break
     for r in range(dirs_cam.shape[0]):
         # from the camera: [t0, t1] is the ray's part in the grid up to the maximum range
         dx, dy, dz, t0, t1 = world_ray(R, dirs_cam[r], 0.0, t_far[r], ox, oy, oz, bmin, ex, ey, ez)
@@ -320,7 +347,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
             t1 = min(t1, _first_solid(occ, ox, oy, oz, dx, dy, dz, t1))
             if t0 > t1:
                 continue
-        if blinded_within(cls, bmin, res, ox, oy, oz, dx, dy, dz, t0, t_near[r], t1, unknown_blinds):
+        if check_blind and blinded_within(cls, bmin, res, ox, oy, oz, dx, dy, dz, t0, t_near[r], t1,
+                                          unknown_blinds):
             n_blind += 1
             continue
         t0 = max(t0, t_near[r])  # nothing but free voxels before the minimum range
@@ -346,6 +374,21 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
             st = 0
             if Oc == 0 and Uc == 0:  # all free: jump to the cell's exit
                 i, j, k, ti, tj, tk, st = skip_cell(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1)
+            elif score_only and Oc == 0 and Uc == ALL_BITS and hc[cf] >= 0.0 and (
+                    NB[cf] == 0 or NB[cf] == ALL_BITS) and _cell_exit_before(i, j, k, ti, tj, tk, si, sj, sk,
+                                                                             di, dj, dk, t1):
+                # all unknown, one entropy, all or none near surface: across at once
+                i2, j2, k2, ti, tj, tk, st = skip_cell(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1)
+                cnt = abs(i2 - i) + abs(j2 - j) + abs(k2 - k)  # the voxels crossed in the cell
+                if with_cover and NB[cf] != 0:
+                    if n_near == 0:
+                        t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
+                    n_near += cnt
+                if n_unknown <= mu < n_unknown + cnt:
+                    n_un_rays += 1
+                n_unknown += cnt
+                sig += hc[cf] * cnt
+                i, j, k = i2, j2, k2
             elif Oc == 0 and Uc == ALL_BITS:  # all unknown
                 Tm = np.uint64(0)
                 n0 = n_unknown
@@ -369,7 +412,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                     sig += h * (n_unknown - n0)
                 else:
                     sig += bits_entropy(H, cf, cy, cz, Tm)  # each voxel once: a ray visits it once
-                nt = _flush(cf, Tm, cF_bit, np.uint64(0), vid, ctag, cT, cF, cOH, touched, nt)
+                if not score_only:
+                    nt = _flush(cf, Tm, cF_bit, np.uint64(0), vid, ctag, cT, cF, cOH, touched, nt)
             else:  # mixed
                 Tm = np.uint64(0)
                 Fm = np.uint64(0)
@@ -388,7 +432,8 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                                                      _voxel_range(bmin, res, i, j, k, ox, oy, oz))
                             if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
                                 n_rsv += 1
-                            nt = _flush(cf, Tm, Fm, OHm, vid, ctag, cT, cF, cOH, touched, nt)
+                            if not score_only:
+                                nt = _flush(cf, Tm, Fm, OHm, vid, ctag, cT, cF, cOH, touched, nt)
                             hit = True
                             break
                         n_unknown += 1
@@ -410,7 +455,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
                 if hit:
                     ray_hit = True
                     break
-                if Tm != 0:
+                if Tm != 0 and not score_only:
                     nt = _flush(cf, Tm, Fm, np.uint64(0), vid, ctag, cT, cF, cOH, touched, nt)
             if st == 2 or i < 0 or j < 0 or k < 0 or i >= nx or j >= ny or k >= nz:
                 break
@@ -433,13 +478,15 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     out[M_NEW_RAYS] += n_new
     out[M_NEW_EXPECTED] += e_new
     out[M_COVER_GAIN] += cover
-    _view_sets_to_metrics(H, hc, cy, cz, cT, cF, cOH, touched, nt, out)
+    if not score_only:
+        _view_sets_to_metrics(H, hc, cy, cz, cT, cF, cOH, touched, nt, out)
 
 
 @nb.njit(cache=True, parallel=True)
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                    n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
-                   density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0, occluders=None):
+                   density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0, occluders=None,
+                   score_only=False):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the
@@ -461,7 +508,8 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     solids outside the grid (chairs) that end a ray where it enters them; None: the grid
     alone decides what a ray sees.
     Every ray is traced voxel by voxel (exact DDA); views are split into `n_chunks` chunks
-    evaluated in parallel."""
+    evaluated in parallel. `score_only`: the per-ray columns only, faster (the coarse pass of
+    the coarse-to-fine evaluation; see _eval_one_view), the distinct-voxel columns 0."""
     n = cam_pos.shape[0]
     H = entropy_grid(logodds)
     cls = classes_grid(logodds, l_free, l_occ)
@@ -478,6 +526,8 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
             nr = near
     stride2 = float(stride * stride)
     occ = np.zeros((0, 8)) if occluders is None else occluders
+    occ_centres = occupied_centres(cls, bmin, res)
+    NB = near_cell_masks(nr, U) if score_only and density is not None else np.zeros(U.size, np.uint64)
     nc = U.size
     out = np.zeros((n, N_METRICS))
     ctag = np.zeros((n_chunks, nc), np.int32)
@@ -492,8 +542,86 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         for v in range(lo, hi):
             _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
                            max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
-                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q, occ)
+                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q, occ, occ_centres,
+                           NB, score_only)
     return out
+
+
+@nb.njit(cache=True)
+def occupied_centres(cls, bmin, res):
+    """The centres (P, 3) of the occupied voxels."""
+    nx, ny, nz = cls.shape
+    n = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                n += cls[i, j, k] == OCCUPIED
+    out = np.empty((n, 3))
+    n = 0
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if cls[i, j, k] == OCCUPIED:
+                    out[n, 0] = bmin[0] + (i + 0.5) * res
+                    out[n, 1] = bmin[1] + (j + 0.5) * res
+                    out[n, 2] = bmin[2] + (k + 0.5) * res
+                    n += 1
+    return out
+
+
+@nb.njit(cache=True)
+def near_cell_masks(near, U):
+    """Per 4x4x4 cell (cell_masks' layout): the bitmask of its unknown voxels marked `near`."""
+    nx, ny, nz = near.shape
+    cy, cz = (ny + 3) >> 2, (nz + 3) >> 2
+    NB = np.zeros(U.size, np.uint64)
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                if near[i, j, k]:
+                    cf = ((i >> 2) * cy + (j >> 2)) * cz + (k >> 2)
+                    NB[cf] |= U64_1 << np.uint64(((i & 3) * 4 + (j & 3)) * 4 + (k & 3))
+    return NB & U
+
+
+@nb.njit(cache=True, parallel=True)
+def views_see_spheres(centres, radius, cam_pos, cam_rot, planes, t_far):
+    """Whether any sphere (centres (P, 3), one radius) may lie in each camera's view
+    (cam_pos (N, 3), cam_rot (N, 3, 3), columns = camera axes): not wholly outside one of the
+    frustum's side planes through the camera (`planes` (4, 3): inward unit normals in the
+    camera frame) nor beyond t_far from it. Conservative: a view that returns False has no
+    ray that can reach any sphere (the frustum's sides bound every ray of the sensor)."""
+    n = cam_pos.shape[0]
+    out = np.zeros(n, np.bool_)
+    for v in nb.prange(n):
+        R = cam_rot[v]
+        ox, oy, oz = cam_pos[v, 0], cam_pos[v, 1], cam_pos[v, 2]
+        reach = t_far + radius
+        for p in range(centres.shape[0]):
+            wx, wy, wz = centres[p, 0] - ox, centres[p, 1] - oy, centres[p, 2] - oz
+            if wx * wx + wy * wy + wz * wz > reach * reach:
+                continue
+            x = R[0, 0] * wx + R[1, 0] * wy + R[2, 0] * wz
+            y = R[0, 1] * wx + R[1, 1] * wy + R[2, 1] * wz
+            z = R[0, 2] * wx + R[1, 2] * wy + R[2, 2] * wz
+            inside = True
+            for f in range(planes.shape[0]):
+                if planes[f, 0] * x + planes[f, 1] * y + planes[f, 2] * z < -radius:
+                    inside = False
+                    break
+            if inside:
+                out[v] = True
+                break
+    return out
+
+
+def frustum_planes(dirs_cam: np.ndarray) -> np.ndarray:
+    """The inward unit normals (4, 3), in the camera frame, of the side planes through the
+    camera that bound the rays `dirs_cam` (+z forward): x/z and y/z between their extremes."""
+    d = np.asarray(dirs_cam, float)
+    tx, ty = d[:, 0] / d[:, 2], d[:, 1] / d[:, 2]
+    planes = np.array([[1.0, 0.0, -tx.min()], [-1.0, 0.0, tx.max()], [0.0, 1.0, -ty.min()], [0.0, -1.0, ty.max()]])
+    return np.ascontiguousarray(planes / np.linalg.norm(planes, axis=1, keepdims=True))
 
 
 def known_occluders(sc) -> np.ndarray:

@@ -18,7 +18,7 @@ from .candidates import free_candidates
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
 from .utility import select_best
-from .views import ViewEvaluator, registration_overlap
+from .views import ViewEvaluator, ranking_score, registration_overlap
 
 
 class RandomSamplingPlanner:
@@ -61,21 +61,18 @@ class RandomSamplingPlanner:
 
         un_total = max(omap.unknown_count(), 1)
 
-        def registered(m):
-            return registration_overlap(m) > self.overlap_h if self.overlap_h is not None else np.ones(len(m), bool)
-
         t = time.perf_counter()
         if p.metric == "seed001":  # its own ray casting: no coarse pass
             met = self.evaluator.evaluate(omap, cand)
             order = None
         else:  # the candidates ranked by reg * info (coarse to fine with planner.coarse_stride)
-            met, order = self.evaluator.evaluate_ranked(omap, cand, lambda m: np.where(
-                registered(m), self.evaluator.information(omap, None, m, p.metric, un_total), 0.0))
+            met, order = self.evaluator.evaluate_ranked(
+                omap, cand, ranking_score(self.evaluator, omap, p.metric, self.overlap_h, un_total))
         times["visibility_s"] = time.perf_counter() - t
         un, oc, post = met[:, K.M_UN_O], met[:, K.M_OC_O], met[:, K.M_N_POSTERIOR]
         stages["visibility"] = int(np.count_nonzero(met[:, K.M_RAYS] > 0))
         overlap = registration_overlap(met)
-        reg = registered(met)
+        reg = overlap > self.overlap_h if self.overlap_h is not None else np.ones(len(cand), bool)
         stages["registration"] = int(reg.sum())
         info = self.evaluator.information(omap, cand, met, p.metric, un_total)
         keep = reg & (info > 0)

@@ -37,8 +37,10 @@ class ViewEvaluator:
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
         #: planner.coarse_stride: the first pass's rays of evaluate_ranked (None: off)
         self.coarse_stride = sc.planner.coarse_stride if sc.planner.coarse_stride > self.stride else 0
-        self.refine_views = sc.planner.refine_views
+        self.refine_views = sc.planner.refine_views or sc.planner.top_k
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
+        full, _, t_far = ray_directions(sc.sensor, 1)  # the outermost pixel centres bound every stride's rays
+        self.frustum = (K.frustum_planes(full), float(t_far.max()))
         from ..sensor import intrinsics
         self.pitch = 1.0 / intrinsics(sc.sensor)[2]  # rad per pixel at the image centre
         #: the coverage radius r of the "coverage" information term (0: not computed)
@@ -68,14 +70,34 @@ class ViewEvaluator:
             met = self.evaluate(omap, q)
             return met, np.argsort(-score(met), kind="stable")
         X = self.kin.camera_poses(q)
-        met = coarse_to_exact_scale(self.evaluate_poses(omap, X, rays=self.coarse), len(self.coarse[0]),
-                                    len(self.dirs))
+        met = np.zeros((len(q), K.N_METRICS))
+        seen = self.may_score(omap, X, getattr(score, "surface_margin", None))
+        coarse = self.evaluate_poses(omap, X[seen], rays=self.coarse, score_only=getattr(score, "per_ray", False))
+        met[seen] = coarse_to_exact_scale(coarse, len(self.coarse[0]), len(self.dirs))
         head = np.argsort(-score(met), kind="stable")[:self.refine_views]
+        head = head[seen[head]]
         met[head] = self.evaluate_poses(omap, X[head])
         head = head[np.argsort(-score(met[head]), kind="stable")]
         tail = np.setdiff1d(np.arange(len(q)), head)
         tail = tail[np.argsort(-score(met[tail]), kind="stable")]
         return met, np.concatenate([head, tail])
+
+    def may_score(self, omap: OccupancyMap, X: np.ndarray, margin: float | None) -> np.ndarray:
+        """Which camera poses X (N, 4, 4) may score above 0 under a ranking whose views score 0
+        unless their rays reach known surface within `margin` voxels (ranking_score's
+        surface_margin): the frustum culling of the coarse-to-fine evaluation, exact for that
+        ranking (view_metrics.views_see_spheres is conservative). None: every pose."""
+        if margin is None or len(X) == 0:
+            return np.ones(len(X), bool)
+        from ..mapping.voxel import OCCUPIED
+        centres = self._per_map("occupied_centres", omap.logodds, lambda: np.ascontiguousarray(
+            omap.spec.bmin + (np.argwhere(omap.classes() == OCCUPIED) + 0.5) * omap.spec.res, dtype=np.float64))
+        if len(centres) == 0:
+            return np.zeros(len(X), bool)
+        radius = (np.sqrt(3.0) / 2.0 + margin) * omap.spec.res
+        planes, t_far = self.frustum
+        return K.views_see_spheres(centres, radius, np.ascontiguousarray(X[:, :3, 3]),
+                                   np.ascontiguousarray(X[:, :3, :3]), planes, t_far)
 
     def voxel_sorting_score(self, omap: OccupancyMap, q: np.ndarray, w: float = 0.5) -> np.ndarray:
         """Santos et al. 2020's score of states q (voxel-sorted ray casting), within the sensor's range."""
@@ -124,10 +146,10 @@ class ViewEvaluator:
         """near_surface(omap), once per occupancy grid."""
         return self._per_map("near", omap.logodds, lambda: near_surface(omap))
 
-    def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray, rays=None) -> np.ndarray:
+    def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray, rays=None, score_only: bool = False) -> np.ndarray:
         """Metrics of camera poses X (N, 4, 4); `rays`: (dirs, t_near, t_far) of another
         stride than ray_stride (the coarse pass), whose M_COVER_GAIN weights each ray by its
-        own stride."""
+        own stride; `score_only`: the per-ray columns only (view_metrics.evaluate_views)."""
         pos = np.ascontiguousarray(X[:, :3, 3])
         rot = np.ascontiguousarray(X[:, :3, :3])
         m = omap.model
@@ -137,6 +159,8 @@ class ViewEvaluator:
         args = (omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot, dirs, t_near,
                 t_far, m.l_free, m.l_occ, min(self.n_chunks, len(pos)))
         kw = dict(near_unknown_blinds=self.near_unknown_blinds, surface_q=surface_probability(omap))
+        if score_only:
+            kw.update(score_only=True)
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
         if self.occluders is not None:
@@ -148,6 +172,30 @@ class ViewEvaluator:
                 near, near_q = self._near(omap)
                 kw.update(near=near, near_q=near_q)
         return K.evaluate_views(lo, *args, **kw)
+
+
+def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, overlap_h: float | None,
+                  un_total: int):
+    """score(metrics) -> (N,): the ranking of random sampling (Vasquez-Gomez et al. 2017 §7.6
+    steps 4-6): the information term of the views that pass the registration filter
+    (overlap > h; None: no filter), 0 for the others."""
+    def score(met):
+        info = evaluator.information(omap, None, met, metric, un_total)
+        return info if overlap_h is None else np.where(registration_overlap(met) > overlap_h, info, 0.0)
+    # how near known surface a view's rays must come for it to score above 0 (voxels): the
+    # registration filter needs rays on known surface (overlap > h >= 0 needs oc_rays > 0);
+    # without it the coverage gain needs known surface or the unknown voxels near it
+    # (near_surface); the other terms score any unknown space (no culling)
+    # whether the score reads the per-ray columns only (the coarse pass may skip the distinct
+    # voxel sets: view_metrics.evaluate_views' score_only)
+    score.per_ray = metric in ("coverage", "surface", "sig", "rsv")
+    if overlap_h is not None:
+        score.surface_margin = 0.0
+    elif metric == "coverage" and evaluator.near_surface_model:
+        score.surface_margin = NEAR_SURFACE_VOXELS
+    else:
+        score.surface_margin = None
+    return score
 
 
 #: the metrics that count rays (scaled by the ray counts between strides); the distinct-voxel

@@ -18,7 +18,6 @@ from .planning.candidates import StateSampler
 from .planning.collision import CollisionModel
 from .robot import RobotKinematics
 from .scanning import ScanRenderer
-from .sensor import ray_directions
 
 
 def _best_of(fn, repeats: int) -> float:

@@ -22,7 +22,7 @@ from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, undecided_free
 from .rrt import ITERATIONS_PER_VERTEX, Tree, extend_batch
 from .utility import select_best
-from .views import ViewEvaluator, registration_overlap
+from .views import ViewEvaluator, ranking_score, registration_overlap, scaled_score
 
 
 class ORTPlanner:
@@ -108,24 +108,31 @@ class ORTPlanner:
 
         t = time.perf_counter()
         q = tree.q[1: tree.n]
-        met = self.evaluator.evaluate(omap, q)
+        un_total = max(omap.unknown_count(), 1)
+        rho = tree.cost[1: tree.n]
+        dist = 1.0 / (1.0 + rho) if p.use_distance else np.ones_like(rho)
+        if p.metric == "seed001":  # its own ray casting: no coarse pass
+            met, order = self.evaluator.evaluate(omap, q), None
+        else:  # the vertices ranked by g (coarse to fine with planner.coarse_stride)
+            score = ranking_score(self.evaluator, omap, p.metric, self.overlap_h, un_total)
+            met, order = self.evaluator.evaluate_ranked(omap, q, scaled_score(score, dist))
         times["visibility_s"] = time.perf_counter() - t
         overlap = registration_overlap(met)
         reg = overlap > self.overlap_h
-        un_total = max(omap.unknown_count(), 1)
         info = self.evaluator.information(omap, q, met, p.metric, un_total)
-        rho = tree.cost[1: tree.n]
-        dist = 1.0 / (1.0 + rho) if p.use_distance else np.ones_like(rho)
         g = reg * info * dist
         stages["registration"] = int(reg.sum())
         stages["surface"] = int(np.count_nonzero(reg & (info > 0)))
         # the root's children, for reference: the NBVS is at least as good as the best of them
         children = np.flatnonzero(tree.parent[1: tree.n] == 0)
         stages["best_root_child"] = float(g[children].max()) if len(children) else 0.0
-        ranked = np.flatnonzero(g > 0)
+        if order is None:
+            ranked = np.flatnonzero(g > 0)
+            ranked = ranked[np.argsort(-g[ranked], kind="stable")]  # the first is argmax(g)
+        else:
+            ranked = order[g[order] > 0]
         if len(ranked) == 0:
             return PlanResult("no_candidate", stages=stages, times=times)
-        ranked = ranked[np.argsort(-g[ranked], kind="stable")]  # the first is argmax(g)
 
         def vertex(b: int) -> PlanResult:
             i = b + 1

@@ -60,7 +60,8 @@ class ViewEvaluator:
 
     def evaluate_ranked(self, omap: OccupancyMap, q: np.ndarray, score) -> tuple[np.ndarray, np.ndarray]:
         """(metrics (N, K.N_METRICS), order): the states' metrics and their ranking by
-        `score(metrics)` (N,), best first (stable). With planner.coarse_stride, coarse to fine:
+        `score(metrics (N, K.N_METRICS))` (N,), best first (stable; `score` may carry
+        `surface_margin` and `per_ray`, see ranking_score). With planner.coarse_stride, coarse to fine:
         every state is evaluated with the coarse rays first (the per-ray columns scaled to this
         evaluator's ray count, PER_RAY_COLUMNS), the best `refine_views` of that ranking again
         at ray_stride; the order lists those by their exact score, then the others by their
@@ -77,9 +78,10 @@ class ViewEvaluator:
         head = np.argsort(-score(met), kind="stable")[:self.refine_views]
         head = head[seen[head]]
         met[head] = self.evaluate_poses(omap, X[head])
-        head = head[np.argsort(-score(met[head]), kind="stable")]
+        g = score(met)
+        head = head[np.argsort(-g[head], kind="stable")]
         tail = np.setdiff1d(np.arange(len(q)), head)
-        tail = tail[np.argsort(-score(met[tail]), kind="stable")]
+        tail = tail[np.argsort(-g[tail], kind="stable")]
         return met, np.concatenate([head, tail])
 
     def may_score(self, omap: OccupancyMap, X: np.ndarray, margin: float | None) -> np.ndarray:
@@ -196,6 +198,16 @@ def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, ove
     else:
         score.surface_margin = None
     return score
+
+
+def scaled_score(score, factor: np.ndarray):
+    """A ranking_score times a per-view factor (the ORT's distance factor), keeping its
+    surface_margin (a factor does not make a view score that scores 0) and per_ray."""
+    def scaled(met):
+        return score(met) * factor
+    scaled.surface_margin = score.surface_margin
+    scaled.per_ray = score.per_ray
+    return scaled
 
 
 #: the metrics that count rays (scaled by the ray counts between strides); the distinct-voxel

@@ -532,7 +532,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.coarse_stride == 0 or p.coarse_stride > p.ray_stride,
              f"planner.coarse_stride must be 0 (off) or more than ray_stride {p.ray_stride}, got {p.coarse_stride}")
     _require(p.coarse_stride == 0 or p.hrt_a == 0,
-             f"planner.coarse_stride needs uniform ray tracing (planner.hrt_a = 0), got hrt_a = {p.hrt_a}")
+             f"planner.coarse_stride needs uniform ray tracing (planner.hrt_a = 0), got hrt_a = {p.hrt_a}; "
+             f"set planner.coarse_stride=0 to use HRT")
     _require(p.coarse_stride == 0 or p.refine_views == 0 or p.refine_views >= p.top_k,
              f"planner.refine_views must be 0 (top_k) or >= top_k {p.top_k} with coarse_stride, got {p.refine_views}")
     _require(p.map_obstacles in ("wbox", "voxels"),

@@ -3,6 +3,7 @@ coarse pass and the ranking whose head is exact."""
 
 import numpy as np
 import pytest
+from test_view_metrics import L_FREE, L_OCC, _block_map
 
 from nbvs_drake.config import load_scenario
 from nbvs_drake.mapping import view_metrics as VM
@@ -10,8 +11,6 @@ from nbvs_drake.mapping.occupancy import OccupancyMap
 from nbvs_drake.planning.candidates import StateSampler
 from nbvs_drake.planning.views import ViewEvaluator, ranking_score, scaled_score
 from nbvs_drake.robot import RobotKinematics
-
-from test_view_metrics import L_FREE, L_OCC, _block_map
 
 
 def _ray_meets_sphere(o, d, c, r, t_far):

@@ -46,7 +46,7 @@ def _bench_maps(sc, kin, r, n_scans: int, rng) -> list:
 
 
 def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000, seed: int = 0,
-                     n_maps: int = 4, coarse_stride: int = 3, hrt_per_trial: int = 200) -> dict:
+                     n_maps: int = 4, coarse_stride: int = 2, hrt_per_trial: int = 200) -> dict:
     """The view evaluator at full resolution (one ray per pixel) on the default scene's maps
     after 1..n_maps scans: the coarse-to-fine evaluator (planner.coarse_stride: every view at
     `coarse_stride`, the best top_k of the ranking again at full resolution) against

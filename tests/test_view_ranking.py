@@ -113,3 +113,33 @@ def test_coarse_to_fine_ranking_has_an_exact_head_and_culls_only_views_that_scor
     g = scaled_score(score, np.full(len(q), 0.5))
     assert g.surface_margin == score.surface_margin and g.per_ray
     np.testing.assert_allclose(g(exact), 0.5 * s_exact)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_rays_towards_known_surface_alone_give_its_coverage_gain_and_overlap(seed):
+    # roi_margin: only the rays towards the occupied voxels' box (grown by the near-surface
+    # reach) are traced, up to where they leave it; the unknown voxels near surface lie in it
+    from scipy import ndimage
+    rng = np.random.default_rng(400 + seed)
+    dims = (24, 22, 18)
+    lo = np.full(dims, -1.5, np.float32)
+    lo[11:20, 5:19, 4:16] = 0.0  # unknown space behind the front of the object
+    occ = np.zeros(dims, bool)
+    occ[10:14, 9:15, 7:12] = rng.random((4, 6, 5)) < 0.5
+    lo[occ] = 1.2
+    near = (ndimage.distance_transform_edt(~occ) <= 2.0) & (lo == 0.0)
+    res, bmin = 0.1, np.zeros(3)
+    dens = rng.uniform(0.0, 3e4, dims).astype(np.float32)
+    o = np.array([-0.6, 1.2, 0.95]) + rng.uniform(-0.05, 0.05, 3)  # looking along +x at the object
+    d_cam = np.c_[rng.normal(0.0, 0.2, size=(300, 2)), np.ones(300)]  # in front of the camera (+z)
+    d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
+    R = np.array([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]])  # camera z along world x
+    t_near, t_far = np.full(len(d_cam), 0.05), np.full(len(d_cam), 4.0)
+    args = (lo, bmin, res, o[None], R, d_cam, t_near, t_far, L_FREE, L_OCC, 1)
+    kw = dict(surface_q=0.07, density=dens, cov_k=np.pi * 9e-6, pitch=0.004, stride=2, near=near, near_q=0.2)
+    full = VM.evaluate_views(*args, **kw)[0]
+    roi = VM.evaluate_views(*args, **kw, score_only=True, roi_margin=2.0)[0]
+    assert full[VM.M_OC_RAYS] > 0 and full[VM.M_COVER_GAIN] > 0
+    assert roi[VM.M_RAYS] < full[VM.M_RAYS]  # some rays were not traced
+    for m in (VM.M_OC_RAYS, VM.M_COVER_GAIN, VM.M_RSV):
+        assert roi[m] == pytest.approx(full[m], rel=1e-9, abs=1e-12), m

@@ -33,7 +33,7 @@ import numba as nb
 import numpy as np
 
 from .cells import ALL_BITS, U64_1, bits_entropy, cell_masks, cell_step, coarse_summary, popcount, skip_cell
-from .raycast import axis_start, axis_start_in, blinded_within, dda_step, world_ray
+from .raycast import axis_start, axis_start_in, blinded_within, clip_ray, dda_step, world_ray
 from .voxel import C_FREE, C_UNKNOWN, OCCUPIED, UNKNOWN, classes_grid, entropy_grid
 
 # columns of the per-view metrics returned by evaluate_views
@@ -299,7 +299,7 @@ def _cell_exit_before(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1):
 @nb.njit(cache=True)
 def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
                    unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2,
-                   near, near_q, occ, occ_centres, NB, score_only):
+                   near, near_q, occ, occ_centres, NB, score_only, roi):
     """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
     collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks).
@@ -308,7 +308,11 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     unless `unknown_blinds`). `score_only`: the per-ray columns only, for a coarse pass (the
     distinct-voxel columns stay 0): an all-unknown cell whose voxels share one entropy and are
     all or none near known surface (`NB`, the cells' near bitmasks) is crossed at once,
-    counting the voxels the ray crosses in it."""
+    counting the voxels the ray crosses in it. `roi` (6: a box's lower and upper corner, or
+    empty): only the rays whose direction falls in the box's image (the bounds of its
+    corners' projections; every ray when the box is not wholly in front of the camera) are
+    traced, up to where they leave the box, for a score that no other ray, and no voxel past
+    the box, can change (ranking_score's roi_margin)."""
     nx, ny, nz = cls.shape
     cy, cz = (ny + 3) >> 2, (nz + 3) >> 2
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
@@ -338,7 +342,25 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
             if wx * wx + wy * wy + wz * wz <= reach * reach:
                 check_blind = True
                 break
+    use_roi = roi.shape[0] == 6
+    txlo, txhi, tylo, tyhi = np.inf, -np.inf, np.inf, -np.inf
+    if use_roi:  # the box's image: the bounds of its corners' projections
+        for c in range(8):
+            wx = (roi[3] if c & 1 else roi[0]) - ox
+            wy = (roi[4] if c & 2 else roi[1]) - oy
+            wz = (roi[5] if c & 4 else roi[2]) - oz
+            zc = R[0, 2] * wx + R[1, 2] * wy + R[2, 2] * wz
+            if zc <= 1e-9:  # a corner beside or behind the camera: no bound
+                use_roi = False
+                break
+            tx = (R[0, 0] * wx + R[1, 0] * wy + R[2, 0] * wz) / zc
+            ty = (R[0, 1] * wx + R[1, 1] * wy + R[2, 1] * wz) / zc
+            txlo, txhi, tylo, tyhi = min(txlo, tx), max(txhi, tx), min(tylo, ty), max(tyhi, ty)
     for r in range(dirs_cam.shape[0]):
+        if use_roi:
+            tx, ty = dirs_cam[r, 0] / dirs_cam[r, 2], dirs_cam[r, 1] / dirs_cam[r, 2]
+            if tx < txlo or tx > txhi or ty < tylo or ty > tyhi:
+                continue
         # from the camera: [t0, t1] is the ray's part in the grid up to the maximum range
         dx, dy, dz, t0, t1 = world_ray(R, dirs_cam[r], 0.0, t_far[r], ox, oy, oz, bmin, ex, ey, ez)
         if t0 > t1:
@@ -354,6 +376,11 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
         t0 = max(t0, t_near[r])  # nothing but free voxels before the minimum range
         if t0 > t1:
             continue
+        if use_roi:  # the ray up to where it leaves the box: nothing after can change the score
+            tb0, tb1 = clip_ray(ox, oy, oz, dx, dy, dz, t0, t1, roi[0], roi[1], roi[2], roi[3], roi[4], roi[5])
+            if tb0 > tb1:
+                continue
+            t1 = tb1
         n_rays += 1
         i, si, ti, di = axis_start(ox, dx, t0, bmin[0], res, nx)
         j, sj, tj, dj = axis_start(oy, dy, t0, bmin[1], res, ny)
@@ -486,7 +513,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                    n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
                    density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0, occluders=None,
-                   score_only=False):
+                   score_only=False, roi_margin=-1.0):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the
@@ -509,7 +536,10 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     alone decides what a ray sees.
     Every ray is traced voxel by voxel (exact DDA); views are split into `n_chunks` chunks
     evaluated in parallel. `score_only`: the per-ray columns only, faster (the coarse pass of
-    the coarse-to-fine evaluation; see _eval_one_view), the distinct-voxel columns 0."""
+    the coarse-to-fine evaluation; see _eval_one_view), the distinct-voxel columns 0.
+    `roi_margin` >= 0 (with score_only): only the rays towards the occupied voxels' bounding
+    box grown by that many voxels are traced (the others count in no column): for a score
+    that only rays on known surface, or on unknown voxels that near it, can change."""
     n = cam_pos.shape[0]
     H = entropy_grid(logodds)
     cls = classes_grid(logodds, l_free, l_occ)
@@ -528,6 +558,13 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     occ = np.zeros((0, 8)) if occluders is None else occluders
     occ_centres = occupied_centres(cls, bmin, res)
     NB = near_cell_masks(nr, U) if score_only and density is not None else np.zeros(U.size, np.uint64)
+    roi = np.zeros(0)
+    if score_only and roi_margin >= 0.0 and occ_centres.shape[0] > 0:
+        g = (0.5 + roi_margin) * res
+        roi = np.empty(6)
+        for a in range(3):
+            roi[a] = occ_centres[:, a].min() - g
+            roi[3 + a] = occ_centres[:, a].max() + g
     nc = U.size
     out = np.zeros((n, N_METRICS))
     ctag = np.zeros((n_chunks, nc), np.int32)
@@ -543,7 +580,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
             _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
                            max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
                            cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q, occ, occ_centres,
-                           NB, score_only)
+                           NB, score_only, roi)
     return out
 
 

@@ -73,7 +73,8 @@ class ViewEvaluator:
         X = self.kin.camera_poses(q)
         met = np.zeros((len(q), K.N_METRICS))
         seen = self.may_score(omap, X, getattr(score, "surface_margin", None))
-        coarse = self.evaluate_poses(omap, X[seen], rays=self.coarse, score_only=getattr(score, "per_ray", False))
+        coarse = self.evaluate_poses(omap, X[seen], rays=self.coarse, score_only=getattr(score, "per_ray", False),
+                                     roi_margin=getattr(score, "roi_margin", None))
         met[seen] = coarse_to_exact_scale(coarse, len(self.coarse[0]), len(self.dirs))
         head = np.argsort(-score(met), kind="stable")[:self.refine_views]
         head = head[seen[head]]
@@ -148,7 +149,8 @@ class ViewEvaluator:
         """near_surface(omap), once per occupancy grid."""
         return self._per_map("near", omap.logodds, lambda: near_surface(omap))
 
-    def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray, rays=None, score_only: bool = False) -> np.ndarray:
+    def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray, rays=None, score_only: bool = False,
+                       roi_margin: float | None = None) -> np.ndarray:
         """Metrics of camera poses X (N, 4, 4); `rays`: (dirs, t_near, t_far) of another
         stride than ray_stride (the coarse pass), whose M_COVER_GAIN weights each ray by its
         own stride; `score_only`: the per-ray columns only (view_metrics.evaluate_views)."""
@@ -162,7 +164,7 @@ class ViewEvaluator:
                 t_far, m.l_free, m.l_occ, min(self.n_chunks, len(pos)))
         kw = dict(near_unknown_blinds=self.near_unknown_blinds, surface_q=surface_probability(omap))
         if score_only:
-            kw.update(score_only=True)
+            kw.update(score_only=True, roi_margin=-1.0 if roi_margin is None else float(roi_margin))
         if self.hrt_a > 0:
             return K.evaluate_views_hrt(lo, self.hrt_a, *args, **kw)
         if self.occluders is not None:
@@ -191,6 +193,11 @@ def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, ove
     # whether the score reads the per-ray columns only (the coarse pass may skip the distinct
     # voxel sets: view_metrics.evaluate_views' score_only)
     score.per_ray = metric in ("coverage", "surface", "sig", "rsv")
+    # the coarse pass may trace only the rays towards known surface (grown by this many
+    # voxels): the coverage gain of such rays alone, and the registration filter when h = 0
+    # (overlap > 0 needs one ray on known surface, whatever the others do)
+    score.roi_margin = NEAR_SURFACE_VOXELS if (
+        metric == "coverage" and evaluator.near_surface_model and overlap_h in (None, 0.0)) else None
     if overlap_h is not None:
         score.surface_margin = 0.0
     elif metric == "coverage" and evaluator.near_surface_model:
@@ -207,6 +214,7 @@ def scaled_score(score, factor: np.ndarray):
         return score(met) * factor
     scaled.surface_margin = score.surface_margin
     scaled.per_ray = score.per_ray
+    scaled.roi_margin = score.roi_margin
     return scaled
 
 

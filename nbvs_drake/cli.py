@@ -28,6 +28,8 @@ def _cmd_reconstruct(args):
 
         import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
         logging.getLogger("drake").setLevel(logging.WARNING)
+        import warnings  # numba's note that it falls back from an old TBB to another threading layer
+        warnings.filterwarnings("ignore", message="The TBB threading layer requires")
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat, MeshcatParams

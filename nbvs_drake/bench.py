@@ -29,9 +29,10 @@ def _best_of(fn, repeats: int) -> float:
     return best
 
 
-def _bench_maps(sc, kin, r, n_scans: int, rng) -> list:
-    """Maps of the scene after 1..n_scans scans: the first from the start, each next one from a
-    random candidate view (the bench needs maps at several stages, not a good run)."""
+def _bench_maps(sc, kin, r, n_scans: int, rng) -> tuple[list, list]:
+    """(maps, scans): the scene's maps after 1..n_scans scans and the scans, the first from
+    the start, each next one from a random candidate view (the bench needs maps at several
+    stages, not a good run)."""
     omap = OccupancyMap.for_scenario(sc)
     sampler = StateSampler(sc, kin)
     q, maps, scans = np.array(sc.robot.start), [], []

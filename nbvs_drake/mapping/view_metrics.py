@@ -287,23 +287,15 @@ def _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez):
     return occ[keep]
 
 
-@nb.njit(cache=True, inline="always")
-def _cell_exit_before(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1):
-    """Whether the ray leaves its 4x4x4 cell before t1 (skip_cell's status 1)."""
-    xi = ti + ((3 - (i & 3)) if si > 0 else (i & 3)) * di if si != 0 else np.inf
-    xj = tj + ((3 - (j & 3)) if sj > 0 else (j & 3)) * dj if sj != 0 else np.inf
-    xk = tk + ((3 - (k & 3)) if sk > 0 else (k & 3)) * dk if sk != 0 else np.inf
-    return min(xi, xj, xk) < t1
-
-
 @nb.njit(cache=True)
 def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
                    unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2,
-                   near, near_q, occ, occ_centres, NB, score_only, roi):
+                   near, near_q, occ, occ_centres, blind_reach, NB, score_only, roi):
     """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
     collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks).
-    When no occupied voxel (`occ_centres`) comes within the minimum range of the camera, no
+    When no occupied voxel centre (`occ_centres`) comes within `blind_reach` of the camera
+    (the longest minimum range of the rays plus a voxel's half diagonal), no
     ray can be blinded and the per-ray check is skipped (exact; only occupied voxels blind
     unless `unknown_blinds`). `score_only`: the per-ray columns only, for a coarse pass (the
     distinct-voxel columns stay 0): an all-unknown cell whose voxels share one entropy and are
@@ -332,14 +324,10 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     occ = _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez)
     check_blind = True
     if not unknown_blinds:  # can an occupied voxel lie within the minimum range of the camera?
-        tn_max = 0.0
-        for r in range(t_near.shape[0]):
-            tn_max = max(tn_max, t_near[r])
-        reach = tn_max + 0.8660254037844386 * res  # a voxel's half diagonal
         check_blind = False
         for p in range(occ_centres.shape[0]):
             wx, wy, wz = occ_centres[p, 0] - ox, occ_centres[p, 1] - oy, occ_centres[p, 2] - oz
-            if wx * wx + wy * wy + wz * wz <= reach * reach:
+            if wx * wx + wy * wy + wz * wz <= blind_reach * blind_reach:
                 check_blind = True
                 break
     use_roi = roi.shape[0] == 6
@@ -401,46 +389,52 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
             st = 0
             if Oc == 0 and Uc == 0:  # all free: jump to the cell's exit
                 i, j, k, ti, tj, tk, st = skip_cell(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1)
-            elif score_only and Oc == 0 and Uc == ALL_BITS and hc[cf] >= 0.0 and (
-                    NB[cf] == 0 or NB[cf] == ALL_BITS) and _cell_exit_before(i, j, k, ti, tj, tk, si, sj, sk,
-                                                                             di, dj, dk, t1):
-                # all unknown, one entropy, all or none near surface: across at once
-                i2, j2, k2, ti, tj, tk, st = skip_cell(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1)
-                cnt = abs(i2 - i) + abs(j2 - j) + abs(k2 - k)  # the voxels crossed in the cell
-                if with_cover and NB[cf] != 0:
-                    if n_near == 0:
-                        t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
-                    n_near += cnt
-                if n_unknown <= mu < n_unknown + cnt:
-                    n_un_rays += 1
-                n_unknown += cnt
-                sig += hc[cf] * cnt
-                i, j, k = i2, j2, k2
             elif Oc == 0 and Uc == ALL_BITS:  # all unknown
-                Tm = np.uint64(0)
-                n0 = n_unknown
-                if n0 == 0:
-                    cF_bit = U64_1 << np.uint64(b)
-                else:
-                    cF_bit = np.uint64(0)
-                while True:
-                    Tm |= U64_1 << np.uint64(b)
-                    n_unknown += 1
-                    if with_cover:
-                        n_near, t_unknown = _count_near(near, bmin, res, i, j, k, ox, oy, oz, n_near, t_unknown)
-                    i, j, k, ti, tj, tk, b, st = cell_step(i, j, k, ti, tj, tk, b, si, sj, sk, di, dj, dk,
-                                                           bi, bj, bk, wi, wj, wk, t1)
-                    if st != 0:
-                        break
-                if n0 <= mu < n_unknown:
-                    n_un_rays += 1
-                h = hc[cf]
-                if h >= 0.0:
-                    sig += h * (n_unknown - n0)
-                else:
-                    sig += bits_entropy(H, cf, cy, cz, Tm)  # each voxel once: a ray visits it once
-                if not score_only:
-                    nt = _flush(cf, Tm, cF_bit, np.uint64(0), vid, ctag, cT, cF, cOH, touched, nt)
+                crossed = False
+                if score_only and hc[cf] >= 0.0 and (NB[cf] == 0 or NB[cf] == ALL_BITS):
+                    # one entropy, all or none near surface: across at once when the ray leaves
+                    # the cell (status 1; at status 2 skip_cell leaves the state as it was)
+                    i2, j2, k2, ti2, tj2, tk2, st = skip_cell(i, j, k, ti, tj, tk, si, sj, sk, di, dj, dk, t1)
+                    if st == 1:
+                        crossed = True
+                        cnt = abs(i2 - i) + abs(j2 - j) + abs(k2 - k)  # the voxels crossed in the cell
+                        if with_cover and NB[cf] != 0:
+                            if n_near == 0:
+                                t_unknown = _voxel_range(bmin, res, i, j, k, ox, oy, oz)
+                            n_near += cnt
+                        if n_unknown <= mu < n_unknown + cnt:
+                            n_un_rays += 1
+                        n_unknown += cnt
+                        sig += hc[cf] * cnt
+                        i, j, k, ti, tj, tk = i2, j2, k2, ti2, tj2, tk2
+                    else:
+                        st = 0
+                if not crossed:  # voxel by voxel, collecting the voxels' bits
+                    Tm = np.uint64(0)
+                    n0 = n_unknown
+                    if n0 == 0:
+                        cF_bit = U64_1 << np.uint64(b)
+                    else:
+                        cF_bit = np.uint64(0)
+                    while True:
+                        Tm |= U64_1 << np.uint64(b)
+                        n_unknown += 1
+                        if with_cover:
+                            n_near, t_unknown = _count_near(near, bmin, res, i, j, k, ox, oy, oz, n_near,
+                                                            t_unknown)
+                        i, j, k, ti, tj, tk, b, st = cell_step(i, j, k, ti, tj, tk, b, si, sj, sk, di, dj, dk,
+                                                               bi, bj, bk, wi, wj, wk, t1)
+                        if st != 0:
+                            break
+                    if n0 <= mu < n_unknown:
+                        n_un_rays += 1
+                    h = hc[cf]
+                    if h >= 0.0:
+                        sig += h * (n_unknown - n0)
+                    else:
+                        sig += bits_entropy(H, cf, cy, cz, Tm)  # each voxel once: a ray visits it once
+                    if not score_only:
+                        nt = _flush(cf, Tm, cF_bit, np.uint64(0), vid, ctag, cT, cF, cOH, touched, nt)
             else:  # mixed
                 Tm = np.uint64(0)
                 Fm = np.uint64(0)
@@ -557,6 +551,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     stride2 = float(stride * stride)
     occ = np.zeros((0, 8)) if occluders is None else occluders
     occ_centres = occupied_centres(cls, bmin, res)
+    blind_reach = t_near.max() + 0.8660254037844386 * res  # a voxel's half diagonal beyond the minimum range
     NB = near_cell_masks(nr, U) if score_only and density is not None else np.zeros(U.size, np.uint64)
     roi = np.zeros(0)
     if score_only and roi_margin >= 0.0 and occ_centres.shape[0] > 0:
@@ -580,7 +575,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
             _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
                            max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
                            cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q, occ, occ_centres,
-                           NB, score_only, roi)
+                           blind_reach, NB, score_only, roi)
     return out
 
 

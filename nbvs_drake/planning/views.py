@@ -92,9 +92,8 @@ class ViewEvaluator:
         ranking (view_metrics.views_see_spheres is conservative). None: every pose."""
         if margin is None or len(X) == 0:
             return np.ones(len(X), bool)
-        from ..mapping.voxel import OCCUPIED
-        centres = self._per_map("occupied_centres", omap.logodds, lambda: np.ascontiguousarray(
-            omap.spec.bmin + (np.argwhere(omap.classes() == OCCUPIED) + 0.5) * omap.spec.res, dtype=np.float64))
+        centres = self._per_map("occupied_centres", omap.logodds, lambda: K.occupied_centres(
+            omap.classes(), omap.spec.bmin.astype(np.float64), omap.spec.res))
         if len(centres) == 0:
             return np.zeros(len(X), bool)
         radius = (np.sqrt(3.0) / 2.0 + margin) * omap.spec.res
@@ -186,10 +185,6 @@ def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, ove
     def score(met):
         info = evaluator.information(omap, None, met, metric, un_total)
         return info if overlap_h is None else np.where(registration_overlap(met) > overlap_h, info, 0.0)
-    # how near known surface a view's rays must come for it to score above 0 (voxels): the
-    # registration filter needs rays on known surface (overlap > h >= 0 needs oc_rays > 0);
-    # without it the coverage gain needs known surface or the unknown voxels near it
-    # (near_surface); the other terms score any unknown space (no culling)
     # whether the score reads the per-ray columns only (the coarse pass may skip the distinct
     # voxel sets: view_metrics.evaluate_views' score_only)
     score.per_ray = metric in ("coverage", "surface", "sig", "rsv")
@@ -198,6 +193,10 @@ def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, ove
     # (overlap > 0 needs one ray on known surface, whatever the others do)
     score.roi_margin = NEAR_SURFACE_VOXELS if (
         metric == "coverage" and evaluator.near_surface_model and overlap_h in (None, 0.0)) else None
+    # how near known surface a view's rays must come for it to score above 0 (voxels): the
+    # registration filter needs rays on known surface (overlap > h >= 0 needs oc_rays > 0);
+    # without it the coverage gain needs known surface or the unknown voxels near it
+    # (near_surface); the other terms score any unknown space (no culling)
     if overlap_h is not None:
         score.surface_margin = 0.0
     elif metric == "coverage" and evaluator.near_surface_model:
@@ -209,7 +208,8 @@ def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, ove
 
 def scaled_score(score, factor: np.ndarray):
     """A ranking_score times a per-view factor (the ORT's distance factor), keeping its
-    surface_margin (a factor does not make a view score that scores 0) and per_ray."""
+    surface_margin (a factor does not make a view score that scores 0), per_ray and
+    roi_margin (the factor is the same for all of a view's rays)."""
     def scaled(met):
         return score(met) * factor
     scaled.surface_margin = score.surface_margin

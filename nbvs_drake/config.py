@@ -183,6 +183,14 @@ class PlannerConfig:
     #: waypoint beside the straight line (motion.steer_via: around the table to the object's
     #: far side) before the RRT; false: the papers' direct steering and RRT Ext-Ext only
     detour_steering: bool = False
+    #: direct steering also offers turn-arc-turn (motion.steer_arc: the base turns while it
+    #: drives where turn-drive-turn would turn the same way twice); the shortest free path is
+    #: taken (roadmap: also its paths' edges); false: the papers' turn-drive-turn only
+    arc_steering: bool = False
+    #: the roadmap planner may reach a candidate with the base turned about the arm's first
+    #: joint and that joint turned back (RobotKinematics.turned_about_mount: the same camera
+    #: pose, so the same view) when that makes the path shorter; false: the sampled state itself
+    free_goal_heading: bool = False
     n_candidates: int = 4000  #: state samples whose director ray meets W_box
     overlap_h: float = 0.5  #: registration threshold h (Table 1: 50 %)
     top_k: int = 25  #: candidates kept for motion planning (§7.6 step 7)

@@ -254,15 +254,80 @@ def steer_together(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarra
     return _together(_base_controls(_base_phases(q0, q1)[0], rc), q1[3:] - q0[3:], rc)
 
 
-def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> list[tuple[str, np.ndarray]]:
+#: the largest angle (rad) between an arc's chord and its tangents that `_arc_base` uses
+ARC_MAX_ANGLE = 1.2
+
+
+def _arc_base(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | None:
+    """Turn-arc-turn base controls from q0 to q1 (x, y, theta): where turn-drive-turn would
+    turn the same way before and after driving (the base circling), the smaller of the two
+    turns is driven as a circular arc instead (v and w_b together), which is shorter in eq. 8
+    (the turn's cost adds in quadrature to the drive's); the remaining turn at the end. Exact
+    under the noise-free Euler model: n steps of constant (v, w_b) displace the base along
+    the direction heading + (n-1) w_b dt / 2 by |v| dt sin(n w_b dt / 2) / sin(w_b dt / 2),
+    so w_b is chosen to aim at q1 and v to reach it. None where the turns have opposite
+    signs (turn-drive-turn is as short), the base does not move, or the arc would be too
+    curved (chord angle above ARC_MAX_ANGLE). Forward or backward driving, whichever turns
+    less, as `_base_phases`."""
+    dx, dy = q1[0] - q0[0], q1[1] - q0[1]
+    d = math.hypot(dx, dy)
+    if d < 1e-4:
+        return None
+    dt = rc.control_dt
+    best, best_turn = None, np.inf
+    for sign in (1.0, -1.0):  # forward, backward: the direction of travel is heading (+ pi)
+        h0 = q0[2] + (0.0 if sign > 0 else math.pi)
+        phi = math.atan2(dy, dx)
+        f0, f2 = float(wrap_angle(phi - h0)), float(wrap_angle(q1[2] + (0.0 if sign > 0 else math.pi) - phi))
+        if f0 * f2 <= 0.0:
+            continue
+        alpha = f0 if abs(f0) <= abs(f2) else f2  # the arc's chord angle: the smaller turn
+        if abs(alpha) > ARC_MAX_ANGLE:
+            continue
+        pre = f0 - alpha  # turn in place before the arc (0 when the first turn is the smaller)
+        length = d * alpha / math.sin(alpha)
+        n = max(2, int(math.ceil(length / (rc.max_linear_velocity * dt) - 1e-9)),
+                int(math.ceil(2.0 * abs(alpha) / (rc.max_angular_velocity * dt) - 1e-9)) + 1)
+        for _ in range(50):
+            delta = 2.0 * alpha / (n - 1)  # heading change per step
+            v = d * math.sin(delta / 2.0) / (dt * math.sin(n * delta / 2.0))
+            if v <= rc.max_linear_velocity + 1e-12 and abs(delta) / dt <= rc.max_angular_velocity + 1e-12:
+                break
+            n += 1
+        else:
+            continue
+        post = float(wrap_angle(q1[2] - (q0[2] + pre + n * delta)))
+        turn = abs(pre) + abs(post)
+        if turn < best_turn:
+            arc = np.zeros((n, NU))
+            arc[:, 0], arc[:, 1] = sign * v, delta / dt
+            best_turn = turn
+            best = np.concatenate([_base_controls((pre, 0.0, 0.0), rc), arc, _base_controls((post, 0.0, 0.0), rc)])
+    return best
+
+
+def steer_arc(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | None:
+    """'arc': `_arc_base` with the arm moving during the base motion (as 'together'), or None."""
+    q0 = np.asarray(q0, float)
+    q1 = np.asarray(q1, float)
+    base = _arc_base(q0, q1, rc)
+    return None if base is None else _together(base, q1[3:] - q0[3:], rc)
+
+
+def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig, arcs: bool = False) -> list[tuple[str, np.ndarray]]:
     """Candidate control sequences from q0 to q1, shortest first. Each is exact under the
     noise-free Euler model (turns and drives are separate phases; the arm moves at constant
     velocity): 'together' (arm during the base motion), 'arm_first', 'base_first', and 'tuck'
-    (arm up, drive, arm down), each with forward and backward driving."""
+    (arm up, drive, arm down), each with forward and backward driving. arcs: first 'arc'
+    (`steer_arc`) where it applies (planner.arc_steering)."""
     q0 = np.asarray(q0, float)
     q1 = np.asarray(q1, float)
     dq = q1[3:] - q0[3:]
     out = []
+    if arcs:
+        c = steer_arc(q0, q1, rc)
+        if c is not None:
+            out.append(("arc", c))
     for ph in _base_phases(q0, q1):
         base = _base_controls(ph, rc)
         out.append(("together", _together(base, dq, rc)))

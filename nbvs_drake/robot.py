@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import math
+
 import numpy as np
 
 from .errors import ScenarioError
@@ -85,6 +87,34 @@ class RobotKinematics:
         q = np.array(q, float)
         q[..., 3:] = np.clip(q[..., 3:], self.arm_lower, self.arm_upper)
         return q
+
+    def turned_about_mount(self, q: np.ndarray, headings: np.ndarray) -> np.ndarray:
+        """States (H, 8) with the camera pose of state q (8,) and the base headings `headings`
+        (H,): the arm's first joint is vertical, so turning the base about that joint's axis
+        and turning the joint back by as much leaves every arm link, and the camera, where
+        they were (the state has two such redundant dimensions; this is the exact one). Rows
+        whose first joint would leave its limits are NaN."""
+        from .motion import wrap_angle
+        q = np.asarray(q, float)
+        headings = np.asarray(headings, float).reshape(-1)
+        X0, axis = self.joint_fixed[0]
+        if not (np.allclose(axis, [0.0, 0.0, 1.0]) and np.allclose(X0[:3, :3], np.eye(3))):
+            raise ValueError("turned_about_mount needs the arm's first joint about the base's vertical")
+        ox, oy = X0[0, 3], X0[1, 3]  # the first joint's axis in the base frame
+        c, s = math.cos(q[2]), math.sin(q[2])
+        mx, my = q[0] + c * ox - s * oy, q[1] + s * ox + c * oy  # its position in the world
+        out = np.tile(q, (len(headings), 1))
+        ch, sh = np.cos(headings), np.sin(headings)
+        out[:, 0] = mx - (ch * ox - sh * oy)
+        out[:, 1] = my - (sh * ox + ch * oy)
+        out[:, 2] = wrap_angle(headings)
+        d = wrap_angle(q[2] - headings)
+        j1 = q[3] + np.stack([d, d - 2 * np.pi, d + 2 * np.pi])  # the joint's turn, either way round
+        ok = (j1 >= self.arm_lower[0]) & (j1 <= self.arm_upper[0])
+        pick = np.argmax(ok, axis=0)  # the shorter turn where both are within the limits
+        out[:, 3] = j1[pick, np.arange(len(headings))]
+        out[~ok.any(axis=0)] = np.nan
+        return out
 
     def arm_within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         q = np.asarray(q, float)

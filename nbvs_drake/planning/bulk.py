@@ -425,27 +425,129 @@ def _sum8(d):
     return ((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7]))
 
 
+#: the cell size (m) of the tree's grid over the base's (x, y) (`TreeGrid`)
+GRID_CELL = 0.25
+
+
+class TreeGrid:
+    """The tree's vertices bucketed by the base's (x, y) in cells of GRID_CELL, for
+    `tree_extensions`' nearest-vertex search: the weighted distance of eq. 8 is at least the
+    base's weighted planar distance, so the search visits rings of cells outwards and stops
+    when the next ring is farther than the nearest vertex found (the same vertex as the brute
+    force, ties to the lower index). A linked list per cell: head (cells,), next (capacity,)."""
+
+    def __init__(self, xy_bounds, capacity: int, cell: float = GRID_CELL):
+        lo, hi = float(xy_bounds[0]), float(xy_bounds[1])
+        self.n_side = max(1, int(math.ceil((hi - lo) / cell)))
+        self.params = np.array([lo, lo, cell], float)
+        self.head = np.full(self.n_side * self.n_side, -1, np.int64)
+        self.next = np.full(capacity, -1, np.int64)
+        self.count = 0
+
+    def insert(self, Q: np.ndarray, n: int):
+        """Adds the vertices Q[count:n]."""
+        _grid_insert(Q, self.count, n, self.params, self.n_side, self.head, self.next)
+        self.count = n
+
+    @property
+    def arrays(self):
+        return self.params, self.n_side, self.head, self.next
+
+
+@nb.njit(cache=True, inline="always")
+def _grid_cell(v, lo, cell, n_side):
+    c = int(math.floor((v - lo) / cell))
+    return min(max(c, 0), n_side - 1)
+
+
 @nb.njit(cache=True)
-def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter):
+def _grid_insert(Q, start, end, params, n_side, head, nxt):
+    for i in range(start, end):
+        c = _grid_cell(Q[i, 0], params[0], params[2], n_side) * n_side + _grid_cell(Q[i, 1], params[1], params[2],
+                                                                                    n_side)
+        nxt[i] = head[c]
+        head[c] = i
+
+
+@nb.njit(cache=True)
+def _nearest_grid(Q, target, w, params, n_side, head, nxt):
+    """rrt._nearest over the vertices in the grid (their weighted distances computed with the
+    same arithmetic), visiting rings of cells around the target's until the ring's planar
+    distance, weighted by the smaller of the x and y weights, reaches the best distance."""
+    lo_x, lo_y, cell = params[0], params[1], params[2]
+    cx = _grid_cell(target[0], lo_x, cell, n_side)
+    cy = _grid_cell(target[1], lo_y, cell, n_side)
+    wmin = min(w[0], w[1])
+    best, best_d, best_sq = -1, np.inf, np.inf
+    d = np.empty(8)
+    for r in range(n_side + 1):
+        if r > 0:
+            # every vertex in ring r or beyond is at least (r - 1) cells plus the target's
+            # distance to its own cell's border away in x or in y
+            fx = min(target[0] - (lo_x + cx * cell), lo_x + (cx + 1) * cell - target[0])
+            fy = min(target[1] - (lo_y + cy * cell), lo_y + (cy + 1) * cell - target[1])
+            gap = (r - 1) * cell + max(0.0, min(fx, fy))
+            if wmin * gap * gap > best_sq:
+                break
+        for i0 in range(cx - r, cx + r + 1):
+            if i0 < 0 or i0 >= n_side:
+                continue
+            for j0 in range(cy - r, cy + r + 1):
+                if j0 < 0 or j0 >= n_side:
+                    continue
+                if max(abs(i0 - cx), abs(j0 - cy)) != r:
+                    continue
+                i = head[i0 * n_side + j0]
+                while i >= 0:
+                    e0 = Q[i, 0] - target[0]
+                    e1 = Q[i, 1] - target[1]
+                    d[0] = w[0] * e0 * e0
+                    d[1] = w[1] * e1 * e1
+                    if d[0] + d[1] <= best_sq:
+                        for j in range(2, 8):
+                            e = Q[i, j] - target[j]
+                            if j == 2:
+                                e = (e + np.pi) % (2 * np.pi) - np.pi
+                            d[j] = w[j] * e * e
+                        sq = ((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7]))
+                        sd = math.sqrt(sq)
+                        if sd < best_d or (sd == best_d and i < best):
+                            best, best_d, best_sq = i, sd, sq
+                    i = nxt[i]
+    return best
+
+
+@nb.njit(cache=True)
+def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter,
+                    grid_params, n_side, head, nxt):
     """The extensions of `rrt.extend_batch` towards each of targets (B, 8) from the tree's
     first n vertices Q[:n] as they stand, computed and checked in one call with the same
     arithmetic as rrt._steer_edge and MotionPlanner.path_free: per target the nearest vertex,
     the clipped steering target, the new vertex (the end of the edge's rollout), the verdict
-    FREE / COLLIDING / UNKNOWN (`extension_undecided` gives the states to ask Drake about), or
-    -2 where the target is at the vertex or the steering gives no controls (COLLIDING includes
-    an edge that leaves the arm's limits), and the edge's eq. 8 length (its steps summed in
-    order: equal to `motion.path_length`'s to ~1e-15 relative)."""
+    FREE / COLLIDING / UNKNOWN, or -2 where the target is at the vertex or the steering gives
+    no controls (COLLIDING includes an edge that leaves the arm's limits), and the edge's eq. 8
+    length (its steps summed in order: equal to `motion.path_length`'s to ~1e-15 relative).
+    The nearest vertices come from the grid (`TreeGrid`: Q[:n] inserted; n_side 0: the brute
+    force). For the UNKNOWN edges, what to ask Drake: first (B,) bool (the edge's first state is
+    undecided: ask about the whole edge), and the interpolated states of edge b that the model
+    cannot decide, states[offsets[b]:offsets[b + 1]] (the edge is free iff Drake finds them
+    all free)."""
     B = targets.shape[0]
     near = np.empty(B, np.int64)
     length = np.zeros(B)
     aim = np.empty((B, 8))
     new = np.empty((B, 8))
     verdict = np.empty(B, np.int8)
+    first = np.zeros(B, np.bool_)
+    offsets = np.zeros(B + 1, np.int64)
+    parts = []
     model = unpack(F, I, H)
     scratch = _scratch(model)
-    none = np.zeros(0, np.bool_)
     for b in range(B):
-        states = _extension_states(Q, n, targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim, length)
+        offsets[b + 1] = offsets[b]
+        i = _nearest_grid(Q, targets[b], w, grid_params, n_side, head, nxt) if n_side > 0 \
+            else _nearest(Q[:n], targets[b], w)
+        states = _extension_states(Q, i, targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim, length)
         if states.shape[0] == 0:
             verdict[b] = -2
             continue
@@ -455,19 +557,34 @@ def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_ste
             for j in range(5):
                 if states[t, 3 + j] < arm_lo[j] - 1e-9 or states[t, 3 + j] > arm_hi[j] + 1e-9:
                     inside = False
-        verdict[b] = _verdict_of_states(interpolate(states, max_step), model, scratch, stride, counter, none) \
-            if inside else COLLIDING
-    return near, aim, new, verdict, length
+        if not inside:
+            verdict[b] = COLLIDING
+            continue
+        allq = interpolate(states, max_step)
+        und = np.zeros(allq.shape[0], np.bool_)
+        verdict[b] = _verdict_of_states(allq, model, scratch, stride, counter, und)
+        if verdict[b] == UNKNOWN:
+            idx = np.flatnonzero(und)
+            first[b] = idx.shape[0] == 0
+            parts.append(allq[idx])
+            offsets[b + 1] = offsets[b] + idx.shape[0]
+    out = np.empty((offsets[B], 8))
+    k = 0
+    for b in range(B):
+        if offsets[b + 1] > offsets[b]:
+            out[offsets[b]:offsets[b + 1]] = parts[k]
+        if verdict[b] == UNKNOWN:
+            k += 1
+    return near, aim, new, verdict, length, first, offsets, out
 
 
 @nb.njit(cache=True)
-def _extension_states(Q, n, target, w, step, rc, arm_lo, arm_hi, b, near, aim, length):
-    """The rollout states of the extension towards `target` (near[b], aim[b] and length[b]
-    filled in); an empty array where the target is at the vertex or the steering gives no
-    controls."""
+def _extension_states(Q, i, target, w, step, rc, arm_lo, arm_hi, b, near, aim, length):
+    """The rollout states of the extension from vertex i towards `target` (near[b], aim[b]
+    and length[b] filled in); an empty array where the target is at the vertex or the
+    steering gives no controls."""
     d = np.empty(8)
     sq = np.empty(8)
-    i = _nearest(Q[:n], target, w)
     near[b] = i
     for j in range(8):
         d[j] = target[j] - Q[i, j]
@@ -495,34 +612,3 @@ def _extension_states(Q, n, target, w, step, rc, arm_lo, arm_hi, b, near, aim, l
             sq[j] = w[j] * e * e
         length[b] += math.sqrt(_sum8(sq))
     return states
-
-
-@nb.njit(cache=True)
-def extension_undecided(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter):
-    """For extensions that `tree_extensions` found UNKNOWN (the same arguments, their targets):
-    (first_undecided (K,) bool: the edge's first state is undecided, ask about the whole edge;
-    offsets (K + 1,), states (total, 8): the interpolated states of edge k the model cannot
-    decide are states[offsets[k]:offsets[k + 1]]; the edge is free iff Drake finds them all
-    free)."""
-    K = targets.shape[0]
-    model = unpack(F, I, H)
-    scratch = _scratch(model)
-    near = np.empty(K, np.int64)
-    aim = np.empty((K, 8))
-    length = np.zeros(K)
-    first = np.zeros(K, np.bool_)
-    offsets = np.zeros(K + 1, np.int64)
-    parts = []
-    for k in range(K):
-        allq = interpolate(_extension_states(Q, n, targets[k], w, step, rc, arm_lo, arm_hi, k, near, aim, length),
-                           max_step)
-        und = np.zeros(allq.shape[0], np.bool_)
-        v = _verdict_of_states(allq, model, scratch, stride, counter, und)
-        idx = np.flatnonzero(und)
-        first[k] = v == UNKNOWN and idx.shape[0] == 0
-        parts.append(allq[idx])
-        offsets[k + 1] = offsets[k] + idx.shape[0]
-    out = np.empty((offsets[K], 8))
-    for k in range(K):
-        out[offsets[k]:offsets[k + 1]] = parts[k]
-    return first, offsets, out

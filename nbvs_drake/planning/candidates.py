@@ -31,6 +31,7 @@ class StateSampler:
         self._X_PF = np.ascontiguousarray([X for X, _ in kin.joint_fixed], dtype=np.float64)
         self._axes = np.ascontiguousarray([a / np.linalg.norm(a) for _, a in kin.joint_fixed], dtype=np.float64)
         self._X_L5C = np.ascontiguousarray(kin.X_L5C, dtype=np.float64)
+        self._plane_offset = _arm_plane_offset(self._X_PF, self._axes, self._X_L5C)
         #: False: the director-ray test in numpy (`views.director_ray_hits`; the same verdicts,
         #: the baseline of `nbvs bench collision`)
         self.numba_director = True
@@ -53,7 +54,7 @@ class StateSampler:
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
         out = np.empty(len(q), np.bool_)
         _looks_at_box(q, self._X_PF, self._axes, self._X_L5C, np.asarray(self.sc.scene.bbox_min, float),
-                      np.asarray(self.sc.scene.bbox_max, float), self.z_near, self.z_far, out)
+                      np.asarray(self.sc.scene.bbox_max, float), self.z_near, self.z_far, self._plane_offset, out)
         return out
 
     def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
@@ -81,15 +82,45 @@ class StateSampler:
             yield from batch[self.looks_at_wbox(batch)]
 
 
+def _arm_plane_offset(X_PF: np.ndarray, axes: np.ndarray, X_L5C: np.ndarray) -> float:
+    """How far (m) the camera's optical axis can be from the arm's vertical plane (through the
+    first joint's axis, at the heading base + first joint), or inf when the arm is not a
+    planar arm of that kind: a first joint about the base's vertical with no rotation before
+    it, the next joints about parallel horizontal axes or about the link's own x (a roll),
+    their offsets along x and z only, and the optical axis along the last link's x (so a roll
+    moves it off the plane by the camera's offset from that axis, no more). Lets
+    `_looks_at_box` reject a state from the heading alone: the plane must come near W_box."""
+    ok = np.allclose(axes[0], [0, 0, 1]) and np.allclose(X_PF[0][:3, :3], np.eye(3))
+    for X, a in zip(X_PF[1:], axes[1:]):
+        ok &= np.allclose(X[:3, :3], np.eye(3)) and abs(X[1, 3]) < 1e-12
+        ok &= np.allclose(np.abs(a), [0, 1, 0]) or np.allclose(np.abs(a), [1, 0, 0])
+    roll = [i for i, a in enumerate(axes) if np.allclose(np.abs(a), [1, 0, 0])]
+    ok &= roll in ([], [len(axes) - 1]) and np.allclose(np.abs(X_L5C[:3, 2]), [1, 0, 0])
+    return float(np.hypot(X_L5C[1, 3], X_L5C[2, 3])) + 1e-9 if ok else np.inf
+
+
 @nb.njit(cache=True)
-def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, out):
+def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, out):
     """out[n]: the camera's optical axis (+z of X_WB5 @ X_L5C) at state q[n] enters the box
     [bmin, bmax] before t_far and leaves it after t_near (the slab test of
     `views.director_ray_hits`, NaN slabs ignored as nanmax / nanmin ignore them), with the
-    forward kinematics of `clearance._body_chain`."""
+    forward kinematics of `clearance._body_chain`. A state whose arm plane (`_arm_plane_offset`:
+    the optical axis is within plane_offset of it) misses the box is rejected first, without
+    the kinematics (the same verdicts: the ray lies within that slab)."""
     T = np.empty((6, 4, 4))
     tmp = np.empty((4, 4))
+    cx, cy = 0.5 * (bmin[0] + bmax[0]), 0.5 * (bmin[1] + bmax[1])
+    hx, hy = 0.5 * (bmax[0] - bmin[0]), 0.5 * (bmax[1] - bmin[1])
+    ox, oy = X_PF[0, 0, 3], X_PF[0, 1, 3]
     for n in range(q.shape[0]):
+        if plane_offset < np.inf:
+            c, s = math.cos(q[n, 2]), math.sin(q[n, 2])
+            mx, my = q[n, 0] + c * ox - s * oy, q[n, 1] + s * ox + c * oy  # the first joint's axis
+            a = q[n, 2] + q[n, 3]
+            nx, ny = -math.sin(a), math.cos(a)  # the arm plane's normal
+            if abs(nx * (cx - mx) + ny * (cy - my)) > plane_offset + abs(nx) * hx + abs(ny) * hy:
+                out[n] = False
+                continue
         _body_chain(q[n], X_PF, axes, T, tmp)
         t0, t1 = -np.inf, np.inf
         slabs = False

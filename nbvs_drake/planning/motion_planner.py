@@ -15,12 +15,20 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import detour_waypoints, path_length, rollout, steer, steer_via
+from ..motion import detour_waypoints, path_length, rollout, steer, steer_arc, steer_together, steer_via
 from ..robot import RobotKinematics
+from . import bulk
 from .bulk import STRIDE
 from .candidates import StateSampler
 from .clearance import FREE, UNKNOWN
 from .collision import CollisionModel
+
+
+#: planner.free_goal_heading: the turned goals tried, evenly spaced in heading (with the goal's own)
+GOAL_HEADINGS = 12
+#: planner.free_goal_heading: of those, the ones with the shortest 'together' paths that are
+#: steered in full (and checked, shortest first, with the goal's own paths)
+TURNED_GOALS = 3
 
 
 @dc.dataclass(frozen=True)
@@ -195,7 +203,8 @@ class MotionPlanner:
         line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
         the other); then RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
         rc, p = self.sc.robot, self.sc.planner
-        found = self._first_free(q0, itertools.chain(steer(q0, q1, rc), self._detours(q0, q1)), obstacles)
+        found = self._first_free(q0, itertools.chain(steer(q0, q1, rc, p.arc_steering), self._detours(q0, q1)),
+                                 obstacles)
         if found is not None:
             return found
         if p.rrt_max_nodes > 0 and rng is not None:
@@ -214,6 +223,40 @@ class MotionPlanner:
             return iter(())
         rc = self.sc.robot
         return (s for w in detour_waypoints(q0, q1, rc.xy_bounds) for s in steer_via(q0, q1, w, rc))
+
+    def _turned_goal_options(self, q0: np.ndarray, goal: np.ndarray) -> list:
+        """planner.free_goal_heading: (kind, controls, states) of direct steering paths to the
+        goal turned about the arm's mount (`RobotKinematics.turned_about_mount`, the same
+        camera pose) to each of GOAL_HEADINGS headings around its own and to the headings
+        that face the direction of travel on arrival (forward or backward: no final turn):
+        'together' (and 'arc' with planner.arc_steering) to the TURNED_GOALS of them with the
+        shortest 'together' (eq. 8, `bulk.edge_lengths`). The path's last state is the
+        turned goal."""
+        rc, p = self.sc.robot, self.sc.planner
+        h = goal[2] + np.arange(1, GOAL_HEADINGS) * (2 * np.pi / GOAL_HEADINGS)
+        twins = [self.kin.turned_about_mount(goal, h)]
+        for back in (0.0, np.pi):
+            t = goal
+            for _ in range(3):  # turning moves the base: a few fixed-point steps
+                a = np.arctan2(t[1] - q0[1], t[0] - q0[0]) + back
+                t = self.kin.turned_about_mount(goal, [a])[0]
+                if np.isnan(t[0]):
+                    break
+            twins.append(t[None])
+        twins = np.vstack(twins)
+        twins = twins[~np.isnan(twins[:, 0])]
+        if len(twins) == 0:
+            return []
+        lengths = bulk.edge_lengths(np.repeat(np.asarray(q0, float)[None], len(twins), 0), twins,
+                                    np.asarray(p.weights, float), bulk.robot_params(rc))
+        out = []
+        for t in twins[np.argsort(lengths, kind="stable")[:TURNED_GOALS]]:
+            out.append(("together", steer_together(q0, t, rc)))
+            if p.arc_steering:
+                c = steer_arc(q0, t, rc)
+                if c is not None:
+                    out.append(("arc", c))
+        return [(kind, c, rollout(q0, c, rc.control_dt)) for kind, c in out]
 
     def _first_free(self, q0: np.ndarray, sequences, obstacles: ObstacleModel):
         """The first of the (kind, controls) sequences from q0 whose path is free, as
@@ -255,15 +298,17 @@ class MotionPlanner:
         out: list = [None] * len(goals)
         length = np.full(len(goals), np.inf)
         for i, g in enumerate(goals):  # the shortest free direct steering path
-            options = [(kind, c, rollout(q0, c, rc.control_dt)) for kind, c in steer(q0, g, rc)]
+            options = [(kind, c, rollout(q0, c, rc.control_dt)) for kind, c in steer(q0, g, rc, p.arc_steering)]
+            if p.free_goal_heading:  # the same view with the base turned about the arm's mount
+                options += self._turned_goal_options(q0, g)
             lengths = [path_length(o[2], p.weights) for o in options]
             for j in np.argsort(lengths, kind="stable"):
                 if self.path_free(options[j][2], obstacles):
                     out[i], length[i] = options[j], lengths[j]
                     break
         # the roadmap for every goal whose turn-drive-turn with the arm moving alongside (the
-        # shortest steering path) is blocked: its path around may be shorter than the others
-        todo = [i for i in range(len(goals)) if out[i] is None or out[i][0] != "together"]
+        # shortest steering path; or an arc) is blocked: its path around may be shorter
+        todo = [i for i in range(len(goals)) if out[i] is None or out[i][0] not in ("together", "arc")]
         self.last_query = {}
         if todo:
             paths, st = self.roadmap.query(q0, goals[todo], obstacles.collision,

@@ -48,17 +48,19 @@ class ORTPlanner:
         paths_free = lambda paths: self.motion.tree_paths_free(paths, obstacles)  # noqa: E731
         budget = ITERATIONS_PER_VERTEX * p.ort_vertices
         bulk_growth = self.motion.bulk_checks and obstacles.collision.certificate is not None
+        grid = bulk.TreeGrid(self.sc.robot.xy_bounds, tree.q.shape[0]) if bulk_growth else None
         while tree.n < p.ort_vertices + 1 and it < budget:
             b = min(p.ort_batch, budget - it)
             it += b
             batch = np.stack([next(targets) for _ in range(b)])
             if bulk_growth:
-                self._extend_bulk(tree, batch, w, obstacles)
+                self._extend_bulk(tree, batch, w, obstacles, grid)
             else:
                 extend_batch(tree, batch, p.tree_step, w, self.sc.robot, paths_free, self.sampler.kin.clip_arm)
         return tree, it
 
-    def _extend_bulk(self, tree: Tree, batch: np.ndarray, w: np.ndarray, obstacles: ObstacleModel):
+    def _extend_bulk(self, tree: Tree, batch: np.ndarray, w: np.ndarray, obstacles: ObstacleModel,
+                     grid: bulk.TreeGrid):
         """`extend_batch` with the steering and the checks of the whole batch in one numba call
         (bulk.tree_extensions: the same nearest vertices, edges and verdicts); the edges it
         cannot decide go through MotionPlanner.tree_paths_free (the certificate, then Drake).
@@ -66,21 +68,18 @@ class ORTPlanner:
         relative); their controls are computed when a path needs them."""
         p, rc, kin = self.sc.planner, self.sc.robot, self.sampler.kin
         col = obstacles.collision
+        grid.insert(tree.q, tree.n)
         with col.timed():
-            near, aim, new, verdict, length = bulk.tree_extensions(
+            near, aim, new, verdict, length, first, offsets, und = bulk.tree_extensions(
                 tree.q, tree.n, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
                 kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE,
-                col.counter)
+                col.counter, *grid.arrays)
         unknown = np.flatnonzero(verdict == UNKNOWN)
         if len(unknown):  # Drake about the states the model could not decide (the rest proved free)
-            with col.timed():
-                first, offsets, und = bulk.extension_undecided(
-                    tree.q, tree.n, np.ascontiguousarray(batch[unknown], float), w, p.tree_step,
-                    bulk.robot_params(rc), kin.arm_lower, kin.arm_upper, *col.certificate.model,
-                    self.motion.tree_max_step, bulk.STRIDE, col.counter)
-            asks = {b: und[offsets[k]:offsets[k + 1]] for k, b in enumerate(unknown) if not first[k]}
+            asks = {b: und[offsets[b]:offsets[b + 1]] for b in unknown if not first[b]}
             for b, ok in undecided_free(asks, obstacles).items():
                 verdict[b] = FREE if ok else COLLIDING
+            first = first[unknown]
             whole = unknown[first]  # the edge's first state undecided: the whole edge's checks
             if len(whole):
                 states = [rollout(tree.q[near[b]], steer_together(tree.q[near[b]], aim[b], rc), rc.control_dt)

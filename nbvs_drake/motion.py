@@ -261,8 +261,10 @@ ARC_MAX_ANGLE = 1.2
 def _arc_base(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | None:
     """Turn-arc-turn base controls from q0 to q1 (x, y, theta): where turn-drive-turn would
     turn the same way before and after driving (the base circling), the smaller of the two
-    turns is driven as a circular arc instead (v and w_b together), which is shorter in eq. 8
-    (the turn's cost adds in quadrature to the drive's); the remaining turn at the end. Exact
+    turns is driven as a circular arc instead (v and w_b together), the remaining turn in
+    place. Shorter in eq. 8 when the arc is gentle (the turn's cost adds in quadrature to the
+    drive's), longer when the arc's extra length outweighs that (a sharp turn over a short
+    drive): the planner takes the shorter (`steer`). Exact
     under the noise-free Euler model: n steps of constant (v, w_b) displace the base along
     the direction heading + (n-1) w_b dt / 2 by |v| dt sin(n w_b dt / 2) / sin(w_b dt / 2),
     so w_b is chosen to aim at q1 and v to reach it. None where the turns have opposite
@@ -314,23 +316,26 @@ def steer_arc(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | N
     return None if base is None else _together(base, q1[3:] - q0[3:], rc)
 
 
-def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig, arcs: bool = False) -> list[tuple[str, np.ndarray]]:
+def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig, weights=None) -> list[tuple[str, np.ndarray]]:
     """Candidate control sequences from q0 to q1, shortest first. Each is exact under the
     noise-free Euler model (turns and drives are separate phases; the arm moves at constant
     velocity): 'together' (arm during the base motion), 'arm_first', 'base_first', and 'tuck'
-    (arm up, drive, arm down), each with forward and backward driving. arcs: first 'arc'
-    (`steer_arc`) where it applies (planner.arc_steering)."""
+    (arm up, drive, arm down), each with forward and backward driving. With eq. 8's weights
+    (planner.arc_steering) also 'arc' (`steer_arc`) where it applies: first when it is
+    shorter than 'together', else after it."""
     q0 = np.asarray(q0, float)
     q1 = np.asarray(q1, float)
     dq = q1[3:] - q0[3:]
     out = []
-    if arcs:
-        c = steer_arc(q0, q1, rc)
-        if c is not None:
-            out.append(("arc", c))
+    arc = steer_arc(q0, q1, rc) if weights is not None else None
     for ph in _base_phases(q0, q1):
         base = _base_controls(ph, rc)
         out.append(("together", _together(base, dq, rc)))
+        if arc is not None:
+            dt = rc.control_dt
+            shorter = path_length(rollout(q0, arc, dt), weights) < path_length(rollout(q0, out[-1][1], dt), weights)
+            out.insert(len(out) - 1 if shorter else len(out), ("arc", arc))
+            arc = None
         out.append(("arm_first", np.concatenate([_arm_controls(dq, rc), base])))
         out.append(("base_first", np.concatenate([base, _arm_controls(dq, rc)])))
         tuck = np.where(np.isnan(TUCK_ARM), q0[3:], TUCK_ARM)

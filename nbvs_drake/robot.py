@@ -4,9 +4,8 @@ camera frame that is read off the same plant (tests check it against Drake's).""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import math
+from pathlib import Path
 
 import numpy as np
 

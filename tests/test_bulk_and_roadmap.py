@@ -366,3 +366,29 @@ def test_the_numba_director_ray_test_is_numpys(kin):
         expected = director_ray_hits(kin.camera_poses(q), sc.scene.bbox_min, sc.scene.bbox_max, s.z_near, s.z_far)
         np.testing.assert_array_equal(s.looks_at_wbox(q), expected)
         assert 0.005 < expected.mean() < 0.1
+        assert s._plane_offset < 0.1  # the arm-plane pretest is on for this arm
+    # a small box far from the middle, where the pretest rejects most states
+    sc = load_scenario(settings=["scene.bbox_min=[0.3, -0.5, 0.5]", "scene.bbox_max=[0.5, -0.3, 0.7]"])
+    s = StateSampler(sc, kin)
+    q = s.sample_states(np.random.default_rng(3), 200_000)
+    expected = director_ray_hits(kin.camera_poses(q), sc.scene.bbox_min, sc.scene.bbox_max, s.z_near, s.z_far)
+    np.testing.assert_array_equal(s.looks_at_wbox(q), expected)
+    assert expected.sum() > 100
+
+
+def test_the_tree_grids_nearest_vertex_is_the_brute_forces():
+    """bulk.TreeGrid's ring search against rrt._nearest's scan: the same index, for trees
+    grown in steps (vertices inserted as they come), vertices and targets outside the grid's
+    bounds, and duplicate vertices (ties go to the lower index, as the scan's)."""
+    from nbvs_drake.planning.rrt import _nearest
+    rng = np.random.default_rng(7)
+    w = np.array([10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
+    Q = np.concatenate([rng.uniform(-2.3, 2.3, (3000, 2)), rng.uniform(-np.pi, np.pi, (3000, 6))], axis=1)
+    Q[2000:2100] = Q[1000:1100]  # duplicates
+    grid = bulk.TreeGrid([-1.9, 1.9], len(Q))
+    for n in (1, 2, 10, 300, 3000):
+        grid.insert(Q, n)
+        T = np.concatenate([rng.uniform(-2.5, 2.5, (400, 2)), rng.uniform(-np.pi, np.pi, (400, 6))], axis=1)
+        T[:50] = Q[rng.integers(0, n, 50)]  # targets on vertices
+        for t in T:
+            assert bulk._nearest_grid(Q, t, w, *grid.arrays) == _nearest(Q[:n], t, w)

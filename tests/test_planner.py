@@ -6,7 +6,16 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from nbvs_drake.mapping import view_metrics as K
-from nbvs_drake.motion import detour_waypoints, path_length, rollout, steer, steer_via, wrap_angle
+from nbvs_drake.motion import (
+    detour_waypoints,
+    path_length,
+    rollout,
+    steer,
+    steer_arc,
+    steer_together,
+    steer_via,
+    wrap_angle,
+)
 from nbvs_drake.planning import PlanRequest, make_planner
 from nbvs_drake.planning.utility import ExpectedUtilityScore
 from nbvs_drake.planning.views import director_ray_hits, registration_overlap
@@ -81,6 +90,44 @@ def test_steering_variants_are_exact(scenario):
         assert not np.any((U[:, 0] != 0) & (U[:, 1] != 0))
 
 
+def test_arc_steering_is_exact_and_shorter_where_the_base_would_turn_the_same_way_twice(scenario):
+    """Turn-arc-turn: exact under the Euler model within the velocity limits; where
+    turn-drive-turn turns the same way before and after driving (the base circling the
+    table), it is shorter in eq. 8; where the turns have opposite signs there is no arc."""
+    rc, w = scenario.robot, scenario.planner.weights
+    q0 = np.array([-1.4, 0.0, -1.2, 0.1, 0.4, -0.3, 0.0, 0.0])
+    rng = np.random.default_rng(0)
+    shorter = 0
+    for _ in range(40):
+        ang = rng.uniform(-2.5, 2.5)
+        q1 = np.concatenate([[1.4 * np.cos(np.pi - ang), 1.4 * np.sin(np.pi - ang)], [rng.uniform(-np.pi, np.pi)],
+                             rng.uniform(-0.5, 0.5, 5)])
+        U = steer_arc(q0, q1, rc)
+        if U is None:
+            continue
+        st = rollout(q0, U, rc.control_dt)
+        np.testing.assert_allclose(st[-1, :2], q1[:2], atol=1e-9)
+        assert abs(wrap_angle(st[-1, 2] - q1[2])) < 1e-9
+        np.testing.assert_allclose(st[-1, 3:], q1[3:], atol=1e-9)
+        assert np.all(np.abs(U[:, 0]) <= rc.max_linear_velocity + 1e-12)
+        assert np.all(np.abs(U[:, 1]) <= rc.max_angular_velocity + 1e-12)
+        assert np.any((U[:, 0] != 0) & (U[:, 1] != 0))  # turning while driving
+        tog = path_length(rollout(q0, steer_together(q0, q1, rc), rc.control_dt), w)
+        kinds = [kind for kind, _ in steer(q0, q1, rc, w)]
+        assert "arc" not in [kind for kind, _ in steer(q0, q1, rc)]
+        if path_length(st, w) < tog:
+            shorter += 1
+            assert kinds[0] == "arc"
+        else:  # a sharp turn over a short drive: the arc is offered after 'together'
+            assert kinds[:2] == ["together", "arc"]
+    assert shorter >= 10
+    # turns of opposite signs (right by 0.3 to face the goal, then left by 0.5; backward
+    # likewise): turn-drive-turn is as short, no arc
+    q0b = q0.copy()
+    q0b[2] = 0.3
+    assert steer_arc(q0b, np.array([-0.4, 0.0, 0.5] + list(q0[3:])), rc) is None
+
+
 def test_detour_steering_is_exact_and_passes_its_waypoint(scenario):
     rc = scenario.robot
     q0 = np.array([-1.45, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0])
@@ -117,6 +164,36 @@ def test_the_motion_planner_drives_around_the_table_to_the_far_side(planner, fir
     assert found is not None and found[0].startswith("detour")
     assert planner.motion.path_free(found[2], obst)
     np.testing.assert_allclose(found[2][-1, :2], q1[:2], atol=1e-9)
+
+
+def test_free_goal_heading_reaches_the_same_view_by_a_path_no_longer(planner, first_scan_map, kin):
+    """planner.free_goal_heading: the path to each goal may end with the base turned about the
+    arm's first joint (the same camera pose); it is free by the planner's own check, and no
+    longer than the path to the goal itself."""
+    from nbvs_drake.planning.motion_planner import MotionPlanner, PlanningObstacles
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    obst = PlanningObstacles(sc, kin).for_map(omap)
+    rng = np.random.default_rng(5)
+    goals = planner.generator.generate(rng, omap)[0]
+    goals = goals[obst.free(goals)][:12]
+    q0 = np.array(sc.robot.start)
+    sc.planner.arc_steering, sc.planner.free_goal_heading = True, False
+    plain = MotionPlanner(sc, kin, planner.motion.sampler).connect_many(q0, goals, obst, np.random.default_rng(0))
+    sc2 = copy.deepcopy(sc)
+    sc2.planner.free_goal_heading = True
+    mp = MotionPlanner(sc2, kin, planner.motion.sampler)
+    turned = mp.connect_many(q0, goals, obst, np.random.default_rng(0))
+    w, moved = sc.planner.weights, 0
+    for g, a, b in zip(goals, plain, turned):
+        if a is None:
+            continue
+        assert b is not None and mp.path_free(b[2], obst)
+        np.testing.assert_allclose(kin.camera_poses(b[2][-1:])[0], kin.camera_poses(g[None])[0], atol=1e-9)
+        if a[0] in ("together", "arc"):
+            assert path_length(b[2], w) <= path_length(a[2], w) + 1e-9
+        moved += not np.allclose(b[2][-1], g, atol=1e-6)
+    assert moved >= 3
 
 
 def test_path_length_eq8():
@@ -278,6 +355,7 @@ def test_no_view_feasible_under_the_noise_stops_the_run_and_says_why(kin, first_
     sc.planner.eu_max_collision_rate = 0.0
     sc.planner.overlap_h = 0.3  # the noisy scenarios' registration filter
     sc.planner.metric = "sur"  # the noisy scenarios' metric (with it every top candidate collides here)
+    sc.planner.arc_steering = sc.planner.free_goal_heading = False  # the noisy scenarios' paths
     sc.noise.sigma_v, sc.noise.sigma_w = 1.0, 4.0
     pl = make_planner(sc, kin)
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(sc.robot.start))

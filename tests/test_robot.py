@@ -37,3 +37,27 @@ def test_camera_pose_base_and_shoulder(kin):
 def test_vectorised_fk_matches_drake(kin):
     for q in random_states(kin, 20, seed=3):
         np.testing.assert_allclose(kin.camera_poses(q)[0], kin.camera_pose_drake(q), atol=1e-12)
+
+
+def test_turned_about_the_mount_keeps_the_camera_pose(kin):
+    """The base turned about the arm's first joint and the joint turned back: the same camera
+    pose (so the same view) for every heading whose joint angle stays within its limits."""
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q = np.concatenate([rng.uniform(-1.5, 1.5, 2), rng.uniform(-np.pi, np.pi, 1),
+                            rng.uniform(kin.arm_lower, kin.arm_upper)])
+        turned = kin.turned_about_mount(q, np.linspace(-np.pi, np.pi, 25))
+        ok = ~np.isnan(turned[:, 0])
+        assert ok.sum() >= 20  # the first joint turns through ~5.9 of the 2 pi rad
+        np.testing.assert_array_equal(np.isnan(turned).any(axis=1), ~ok)
+        assert np.all(kin.arm_within_limits(turned[ok]))
+        np.testing.assert_array_equal(turned[ok][:, 4:], np.tile(q[4:], (ok.sum(), 1)))
+        X = kin.camera_poses(np.vstack([q[None], turned[ok]]))
+        np.testing.assert_allclose(X[1:], np.broadcast_to(X[0], X[1:].shape), atol=1e-12)
+    # the joint's range leaves a gap of ~0.37 rad: a heading whose joint angle falls in it,
+    # either way round, is NaN; the joint may turn the long way round to reach another
+    q = np.zeros(8)
+    q[3] = 2.8
+    assert np.isnan(kin.turned_about_mount(q, [-0.2])[0, 0])  # 3.0 or 3.0 - 2 pi
+    t = kin.turned_about_mount(q, [-0.5])[0]  # 3.3 - 2 pi
+    np.testing.assert_allclose(t[3], 3.3 - 2 * np.pi)

@@ -32,7 +32,7 @@ from ..motion import path_length, wrap_angle
 from ..robot import RobotKinematics
 from .candidates import StateSampler, free_candidates
 from .interface import PlanRequest, PlanResult
-from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
+from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, reached_goal
 from .utility import select_best
 from .view_sampling import camera_ik
 from .views import ViewEvaluator, registration_overlap
@@ -51,7 +51,7 @@ def view_result(sc: Scenario, evaluator: ViewEvaluator, omap: OccupancyMap, q: n
     rho = path_length(states, p.weights)
     dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
     du = 1.0 * reg * info * dist
-    return PlanResult("ok", np.array(q, float), controls, states, kind, float(du), {
+    return PlanResult("ok", reached_goal(sc, q, states), controls, states, kind, float(du), {
         "pos": 1.0, "reg": reg, "info": info, "metric": p.metric, "dist": float(dist), "rho": float(rho),
         "un_o": int(met[0, K.M_UN_O]), "un_touched": int(met[0, K.M_UN_O] + met[0, K.M_N_POSTERIOR]),
         "oc_o": int(met[0, K.M_OC_O]), "overlap": overlap,

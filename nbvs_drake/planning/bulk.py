@@ -517,9 +517,9 @@ def _nearest_grid(Q, target, w, params, n_side, head, nxt):
     return best
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter,
-                    grid_params, n_side, head, nxt):
+                    grid_params, n_side, head, nxt, n_chunks):
     """The extensions of `rrt.extend_batch` towards each of targets (B, 8) from the tree's
     first n vertices Q[:n] as they stand, computed and checked in one call with the same
     arithmetic as rrt._steer_edge and MotionPlanner.path_free: per target the nearest vertex,
@@ -528,54 +528,72 @@ def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_ste
     no controls (COLLIDING includes an edge that leaves the arm's limits), and the edge's eq. 8
     length (its steps summed in order: equal to `motion.path_length`'s to ~1e-15 relative).
     The nearest vertices come from the grid (`TreeGrid`: Q[:n] inserted; n_side 0: the brute
-    force). For the UNKNOWN edges, what to ask Drake: first (B,) bool (the edge's first state is
-    undecided: ask about the whole edge), and the interpolated states of edge b that the model
-    cannot decide, states[offsets[b]:offsets[b + 1]] (the edge is free iff Drake finds them
-    all free)."""
+    force). The extensions are independent: they are spread over n_chunks chunks of targets
+    (numba threads; each chunk its own scratch; a few chunks per thread even out their
+    costs), the same outputs for any count. For the
+    UNKNOWN edges, what to ask Drake: first (B,) bool (the edge's first state is undecided:
+    ask about the whole edge), and the interpolated states of edge b that the model cannot
+    decide, states[offsets[b]:offsets[b + 1]] (the edge is free iff Drake finds them all
+    free); those few edges are walked again, in order, to collect them."""
     B = targets.shape[0]
     near = np.empty(B, np.int64)
     length = np.zeros(B)
     aim = np.empty((B, 8))
     new = np.empty((B, 8))
     verdict = np.empty(B, np.int8)
+    counts = np.zeros(B, np.int64)
+    model = unpack(F, I, H)
+    n_chunks = max(1, min(n_chunks, B))
+    for c in nb.prange(n_chunks):
+        scratch = _scratch(model)
+        none = np.zeros(0, np.bool_)
+        for b in range(c * B // n_chunks, (c + 1) * B // n_chunks):
+            i = _nearest_grid(Q, targets[b], w, grid_params, n_side, head, nxt) if n_side > 0 \
+                else _nearest(Q[:n], targets[b], w)
+            states = _extension_states(Q, i, targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim, length)
+            if states.shape[0] == 0:
+                verdict[b] = -2
+                continue
+            new[b] = states[-1]
+            if not _within_arm_limits(states, arm_lo, arm_hi):
+                verdict[b] = COLLIDING
+                continue
+            verdict[b] = _verdict_of_states(interpolate(states, max_step), model, scratch, stride,
+                                            counts[b:b + 1], none)
+    counter[0] += counts.sum()
+    # the undecided states of the UNKNOWN edges (the same walk, with the states marked)
     first = np.zeros(B, np.bool_)
     offsets = np.zeros(B + 1, np.int64)
     parts = []
-    model = unpack(F, I, H)
     scratch = _scratch(model)
     for b in range(B):
         offsets[b + 1] = offsets[b]
-        i = _nearest_grid(Q, targets[b], w, grid_params, n_side, head, nxt) if n_side > 0 \
-            else _nearest(Q[:n], targets[b], w)
-        states = _extension_states(Q, i, targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim, length)
-        if states.shape[0] == 0:
-            verdict[b] = -2
+        if verdict[b] != UNKNOWN:
             continue
-        new[b] = states[-1]
-        inside = True
-        for t in range(states.shape[0]):
-            for j in range(5):
-                if states[t, 3 + j] < arm_lo[j] - 1e-9 or states[t, 3 + j] > arm_hi[j] + 1e-9:
-                    inside = False
-        if not inside:
-            verdict[b] = COLLIDING
-            continue
-        allq = interpolate(states, max_step)
+        allq = interpolate(_extension_states(Q, near[b], targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim,
+                                             length), max_step)
         und = np.zeros(allq.shape[0], np.bool_)
-        verdict[b] = _verdict_of_states(allq, model, scratch, stride, counter, und)
-        if verdict[b] == UNKNOWN:
-            idx = np.flatnonzero(und)
-            first[b] = idx.shape[0] == 0
-            parts.append(allq[idx])
-            offsets[b + 1] = offsets[b] + idx.shape[0]
+        _verdict_of_states(allq, model, scratch, stride, counts[b:b + 1], und)
+        idx = np.flatnonzero(und)
+        first[b] = idx.shape[0] == 0
+        parts.append(allq[idx])
+        offsets[b + 1] = offsets[b] + idx.shape[0]
     out = np.empty((offsets[B], 8))
     k = 0
     for b in range(B):
-        if offsets[b + 1] > offsets[b]:
-            out[offsets[b]:offsets[b + 1]] = parts[k]
         if verdict[b] == UNKNOWN:
+            out[offsets[b]:offsets[b + 1]] = parts[k]
             k += 1
     return near, aim, new, verdict, length, first, offsets, out
+
+
+@nb.njit(cache=True)
+def _within_arm_limits(states, arm_lo, arm_hi):
+    for t in range(states.shape[0]):
+        for j in range(5):
+            if states[t, 3 + j] < arm_lo[j] - 1e-9 or states[t, 3 + j] > arm_hi[j] + 1e-9:
+                return False
+    return True
 
 
 @nb.njit(cache=True)

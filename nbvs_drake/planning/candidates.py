@@ -99,7 +99,7 @@ def _arm_plane_offset(X_PF: np.ndarray, axes: np.ndarray, X_L5C: np.ndarray) -> 
     return float(np.hypot(X_L5C[1, 3], X_L5C[2, 3])) + 1e-9 if ok else np.inf
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, out):
     """out[n]: the camera's optical axis (+z of X_WB5 @ X_L5C) at state q[n] enters the box
     [bmin, bmax] before t_far and leaves it after t_near (the slab test of
@@ -107,35 +107,46 @@ def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset,
     forward kinematics of `clearance._body_chain`. A state whose arm plane (`_arm_plane_offset`:
     the optical axis is within plane_offset of it) misses the box is rejected first, without
     the kinematics (the same verdicts: the ray lies within that slab)."""
-    T = np.empty((6, 4, 4))
-    tmp = np.empty((4, 4))
     cx, cy = 0.5 * (bmin[0] + bmax[0]), 0.5 * (bmin[1] + bmax[1])
     hx, hy = 0.5 * (bmax[0] - bmin[0]), 0.5 * (bmax[1] - bmin[1])
     ox, oy = X_PF[0, 0, 3], X_PF[0, 1, 3]
-    for n in range(q.shape[0]):
-        if plane_offset < np.inf:
-            c, s = math.cos(q[n, 2]), math.sin(q[n, 2])
-            mx, my = q[n, 0] + c * ox - s * oy, q[n, 1] + s * ox + c * oy  # the first joint's axis
-            a = q[n, 2] + q[n, 3]
-            nx, ny = -math.sin(a), math.cos(a)  # the arm plane's normal
-            if abs(nx * (cx - mx) + ny * (cy - my)) > plane_offset + abs(nx) * hx + abs(ny) * hy:
-                out[n] = False
-                continue
-        _body_chain(q[n], X_PF, axes, T, tmp)
-        t0, t1 = -np.inf, np.inf
-        slabs = False
-        for i in range(3):
-            o = T[5, i, 0] * X_L5C[0, 3] + T[5, i, 1] * X_L5C[1, 3] + T[5, i, 2] * X_L5C[2, 3] + T[5, i, 3]
-            d = T[5, i, 0] * X_L5C[0, 2] + T[5, i, 1] * X_L5C[1, 2] + T[5, i, 2] * X_L5C[2, 2]
-            inv = 1.0 / d if d != 0.0 else math.copysign(np.inf, d)
-            ta = (bmin[i] - o) * inv
-            tb = (bmax[i] - o) * inv
-            if not math.isnan(ta) and not math.isnan(tb):  # else numpy's minimum / maximum are NaN
-                t0 = max(t0, min(ta, tb))
-                t1 = min(t1, max(ta, tb))
-                slabs = True
-        out[n] = slabs and t0 <= t1 and t1 >= t_near and t0 <= t_far
+    N = q.shape[0]
+    n_chunks = max(1, min(N // 1024, 4 * nb.get_num_threads()))
+    for c in nb.prange(n_chunks):  # independent states: chunks of them over the threads
+        T = np.empty((6, 4, 4))
+        tmp = np.empty((4, 4))
+        for n in range(c * N // n_chunks, (c + 1) * N // n_chunks):
+            _looks_at_one(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, cx, cy, hx, hy,
+                          ox, oy, T, tmp, out)
     return out
+
+
+@nb.njit(cache=True, inline="always")
+def _looks_at_one(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, cx, cy, hx, hy, ox, oy, T,
+                  tmp, out):
+    """`_looks_at_box` for state n."""
+    if plane_offset < np.inf:
+        c, s = math.cos(q[n, 2]), math.sin(q[n, 2])
+        mx, my = q[n, 0] + c * ox - s * oy, q[n, 1] + s * ox + c * oy  # the first joint's axis
+        a = q[n, 2] + q[n, 3]
+        nx, ny = -math.sin(a), math.cos(a)  # the arm plane's normal
+        if abs(nx * (cx - mx) + ny * (cy - my)) > plane_offset + abs(nx) * hx + abs(ny) * hy:
+            out[n] = False
+            return
+    _body_chain(q[n], X_PF, axes, T, tmp)
+    t0, t1 = -np.inf, np.inf
+    slabs = False
+    for i in range(3):
+        o = T[5, i, 0] * X_L5C[0, 3] + T[5, i, 1] * X_L5C[1, 3] + T[5, i, 2] * X_L5C[2, 3] + T[5, i, 3]
+        d = T[5, i, 0] * X_L5C[0, 2] + T[5, i, 1] * X_L5C[1, 2] + T[5, i, 2] * X_L5C[2, 2]
+        inv = 1.0 / d if d != 0.0 else math.copysign(np.inf, d)
+        ta = (bmin[i] - o) * inv
+        tb = (bmax[i] - o) * inv
+        if not math.isnan(ta) and not math.isnan(tb):  # else numpy's minimum / maximum are NaN
+            t0 = max(t0, min(ta, tb))
+            t1 = min(t1, max(ta, tb))
+            slabs = True
+    out[n] = slabs and t0 <= t1 and t1 >= t_near and t0 <= t_far
 
 
 def free_candidates(generator, obstacles, rng: np.random.Generator, omap: OccupancyMap, stages: dict,

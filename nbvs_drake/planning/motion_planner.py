@@ -23,7 +23,6 @@ from .candidates import StateSampler
 from .clearance import FREE, UNKNOWN
 from .collision import CollisionModel
 
-
 #: planner.free_goal_heading: the turned goals tried, evenly spaced in heading (with the goal's own)
 GOAL_HEADINGS = 12
 #: planner.free_goal_heading: of those, the ones with the shortest 'together' paths that are
@@ -70,6 +69,13 @@ class PlanningObstacles:
         self._last = ObstacleModel(model, omap.scan_count, {
             "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t})
         return self._last
+
+
+def reached_goal(sc: Scenario, goal: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """The state a path from `connect_many` to `goal` ends on: the goal, or with
+    planner.free_goal_heading its twin turned about the arm's mount (the same view; the exact
+    steering ends on it to ~1e-14)."""
+    return states[-1].copy() if sc.planner.free_goal_heading else np.array(goal, float)
 
 
 def undecided_free(asks: dict, obstacles: ObstacleModel) -> dict:
@@ -203,8 +209,8 @@ class MotionPlanner:
         line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
         the other); then RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
         rc, p = self.sc.robot, self.sc.planner
-        found = self._first_free(q0, itertools.chain(steer(q0, q1, rc, p.arc_steering), self._detours(q0, q1)),
-                                 obstacles)
+        arcs = p.weights if p.arc_steering else None
+        found = self._first_free(q0, itertools.chain(steer(q0, q1, rc, arcs), self._detours(q0, q1)), obstacles)
         if found is not None:
             return found
         if p.rrt_max_nodes > 0 and rng is not None:
@@ -298,7 +304,8 @@ class MotionPlanner:
         out: list = [None] * len(goals)
         length = np.full(len(goals), np.inf)
         for i, g in enumerate(goals):  # the shortest free direct steering path
-            options = [(kind, c, rollout(q0, c, rc.control_dt)) for kind, c in steer(q0, g, rc, p.arc_steering)]
+            options = [(kind, c, rollout(q0, c, rc.control_dt))
+                       for kind, c in steer(q0, g, rc, p.weights if p.arc_steering else None)]
             if p.free_goal_heading:  # the same view with the base turned about the arm's mount
                 options += self._turned_goal_options(q0, g)
             lengths = [path_length(o[2], p.weights) for o in options]

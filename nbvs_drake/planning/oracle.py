@@ -31,6 +31,7 @@ from ..objects import ObjectMesh, sample_surface
 from ..robot import RobotKinematics
 from ..sensor import ray_directions
 from .interface import PlanRequest, PlanResult
+from .motion_planner import reached_goal
 
 #: poses the ceiling is measured over, and its fixed ground-truth draw
 CEILING_POSES = 2000
@@ -213,7 +214,7 @@ class OraclePlanner:
                 times["motion_planning_s"] = time.perf_counter() - t
                 kind, controls, states = f
                 g = fine_of[int(i)] / max(len(self.gt), 1)
-                return PlanResult("ok", cand[i], controls, states, kind, float(g), {
+                return PlanResult("ok", reached_goal(self.sc, cand[i], states), controls, states, kind, float(g), {
                     "pos": 1.0, "reg": 1.0, "info": float(g), "metric": "oracle", "dist": 1.0,
                     "rho": float(path_length(states, p.weights)), "du": float(g)}, stages, times)
         times["motion_planning_s"] = time.perf_counter() - t

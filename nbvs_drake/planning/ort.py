@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 
 from ..config import Scenario
@@ -73,7 +74,7 @@ class ORTPlanner:
             near, aim, new, verdict, length, first, offsets, und = bulk.tree_extensions(
                 tree.q, tree.n, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
                 kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE,
-                col.counter, *grid.arrays)
+                col.counter, *grid.arrays, 4 * numba.get_num_threads())
         unknown = np.flatnonzero(verdict == UNKNOWN)
         if len(unknown):  # Drake about the states the model could not decide (the rest proved free)
             asks = {b: und[offsets[b]:offsets[b + 1]] for b in unknown if not first[b]}

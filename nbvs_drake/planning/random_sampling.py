@@ -16,7 +16,7 @@ from ..mapping import view_metrics as K
 from ..motion import path_length
 from .candidates import free_candidates
 from .interface import PlanRequest, PlanResult
-from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles
+from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, reached_goal
 from .utility import select_best
 from .views import ViewEvaluator, ranking_score, registration_overlap
 
@@ -101,10 +101,8 @@ class RandomSamplingPlanner:
                     rho = path_length(states, p.weights)
                     dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
                     du = 1.0 * 1.0 * info[i] * dist  # pos = reg = 1 for the survivors
-                    # the goal reached: the candidate, or its twin with the same view
-                    # (planner.free_goal_heading; the exact steering ends on it to ~1e-14)
-                    goal = cand[i] if not p.free_goal_heading else states[-1].copy()
-                    reachable.append(PlanResult("ok", goal, controls, states, kind, float(du), {
+                    reachable.append(PlanResult("ok", reached_goal(self.sc, cand[i], states), controls, states, kind,
+                                                float(du), {
                         "pos": 1.0, "reg": 1.0, "info": float(info[i]), "metric": p.metric, "dist": float(dist),
                         "rho": float(rho), "un_o": int(un[i]), "un_touched": int(un[i] + post[i]), "oc_o": int(oc[i]),
                         "overlap": float(overlap[i]),

@@ -35,7 +35,7 @@ def warm_kernels() -> float:
     grid = bulk.TreeGrid(sc.robot.xy_bounds, len(q))
     grid.insert(q, 1)
     bulk.tree_extensions(q, 1, q[1:], w, 1.0, rc, kin.arm_lower, kin.arm_upper, *cert.model, 0.04, bulk.STRIDE,
-                         cm.counter, *grid.arrays)
+                         cm.counter, *grid.arrays, 1)
     return time.perf_counter() - t
 
 

@@ -42,7 +42,7 @@ from .clearance import (
     _vertical_cylinder_box_overlap,
     unpack,
 )
-from .rrt import _nearest
+from .rrt import _nearest, _sq_within
 
 #: states visited in the first, coarse pass over a path: every STRIDE-th (and the last)
 STRIDE = 8
@@ -499,17 +499,8 @@ def _nearest_grid(Q, target, w, params, n_side, head, nxt):
                     continue
                 i = head[i0 * n_side + j0]
                 while i >= 0:
-                    e0 = Q[i, 0] - target[0]
-                    e1 = Q[i, 1] - target[1]
-                    d[0] = w[0] * e0 * e0
-                    d[1] = w[1] * e1 * e1
-                    if d[0] + d[1] <= best_sq:
-                        for j in range(2, 8):
-                            e = Q[i, j] - target[j]
-                            if j == 2:
-                                e = (e + np.pi) % (2 * np.pi) - np.pi
-                            d[j] = w[j] * e * e
-                        sq = ((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7]))
+                    sq = _sq_within(Q, i, target, w, d, best_sq, True)
+                    if sq < np.inf:
                         sd = math.sqrt(sq)
                         if sd < best_d or (sd == best_d and i < best):
                             best, best_d, best_sq = i, sd, sq

@@ -34,28 +34,37 @@ def weighted_dist(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.sqrt(np.sum(w * d * d, axis=-1))
 
 
+@nb.njit(cache=True, inline="always")
+def _sq_within(Q, i, q, w, d, bound, ties):
+    """sum_j w_j (Q[i, j] - q_j)^2 with numpy's arithmetic (the same wrapped angle, the same
+    pairwise order of the 8 terms, d (8,) scratch), or inf when its first two terms already
+    exceed `bound` (reach it, unless ties): the terms are >= 0 and rounding is monotone, so the
+    full sum cannot be smaller (the base's x and y carry most of the default weights)."""
+    e0 = Q[i, 0] - q[0]
+    e1 = Q[i, 1] - q[1]
+    d[0] = w[0] * e0 * e0
+    d[1] = w[1] * e1 * e1
+    if d[0] + d[1] > bound or (not ties and d[0] + d[1] == bound):
+        return np.inf
+    for j in range(2, 8):
+        e = Q[i, j] - q[j]
+        if j == 2:
+            e = (e + np.pi) % (2 * np.pi) - np.pi
+        d[j] = w[j] * e * e
+    return ((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7]))
+
+
 @nb.njit(cache=True)
 def _nearest(Q: np.ndarray, q: np.ndarray, w: np.ndarray) -> int:
     """argmin over the rows of Q of weighted_dist(Q, q, w), with numpy's arithmetic: the
     same wrapped angle and the same (pairwise) order of the 8-term sum, so the same index.
-    A row whose first two terms already reach the best sum is skipped: the terms are >= 0 and
-    rounding is monotone, so its full sum, and the sum's root, cannot be smaller (the base's
-    x and y carry most of the default weights)."""
+    A row whose first two terms already reach the best sum is skipped (`_sq_within`)."""
     best, best_d, best_sq = 0, np.inf, np.inf
     d = np.empty(8)
     for i in range(Q.shape[0]):
-        e0 = Q[i, 0] - q[0]
-        e1 = Q[i, 1] - q[1]
-        d[0] = w[0] * e0 * e0
-        d[1] = w[1] * e1 * e1
-        if d[0] + d[1] >= best_sq:
+        sq = _sq_within(Q, i, q, w, d, best_sq, False)
+        if sq == np.inf:
             continue
-        for j in range(2, 8):
-            e = Q[i, j] - q[j]
-            if j == 2:
-                e = (e + np.pi) % (2 * np.pi) - np.pi
-            d[j] = w[j] * e * e
-        sq = ((d[0] + d[1]) + (d[2] + d[3])) + ((d[4] + d[5]) + (d[6] + d[7]))
         s = math.sqrt(sq)
         if s < best_d:
             best, best_d, best_sq = i, s, sq

@@ -54,7 +54,8 @@ class StateSampler:
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
         out = np.empty(len(q), np.bool_)
         _looks_at_box(q, self._X_PF, self._axes, self._X_L5C, np.asarray(self.sc.scene.bbox_min, float),
-                      np.asarray(self.sc.scene.bbox_max, float), self.z_near, self.z_far, self._plane_offset, out)
+                      np.asarray(self.sc.scene.bbox_max, float), self.z_near, self.z_far, self._plane_offset,
+                      nb.get_num_threads(), out)
         return out
 
     def generate(self, rng: np.random.Generator, omap: OccupancyMap | None = None) -> tuple[np.ndarray, int]:
@@ -100,18 +101,19 @@ def _arm_plane_offset(X_PF: np.ndarray, axes: np.ndarray, X_L5C: np.ndarray) -> 
 
 
 @nb.njit(cache=True, parallel=True)
-def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, out):
+def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, threads, out):
     """out[n]: the camera's optical axis (+z of X_WB5 @ X_L5C) at state q[n] enters the box
     [bmin, bmax] before t_far and leaves it after t_near (the slab test of
     `views.director_ray_hits`, NaN slabs ignored as nanmax / nanmin ignore them), with the
     forward kinematics of `clearance._body_chain`. A state whose arm plane (`_arm_plane_offset`:
     the optical axis is within plane_offset of it) misses the box is rejected first, without
-    the kinematics (the same verdicts: the ray lies within that slab)."""
+    the kinematics (the same verdicts: the ray lies within that slab). The states are split
+    into chunks over `threads` numba threads (the same verdicts for any count)."""
     cx, cy = 0.5 * (bmin[0] + bmax[0]), 0.5 * (bmin[1] + bmax[1])
     hx, hy = 0.5 * (bmax[0] - bmin[0]), 0.5 * (bmax[1] - bmin[1])
     ox, oy = X_PF[0, 0, 3], X_PF[0, 1, 3]
     N = q.shape[0]
-    n_chunks = max(1, min(N // 1024, 4 * nb.get_num_threads()))
+    n_chunks = max(1, min(N // 1024, 4 * threads))
     for c in nb.prange(n_chunks):  # independent states: chunks of them over the threads
         T = np.empty((6, 4, 4))
         tmp = np.empty((4, 4))

@@ -321,3 +321,48 @@ def test_recovery_rollouts_reject_a_path_that_the_belief_s_spread_drives_into_th
     assert rec._direct(q0, goal, obs, np.diag([0.05 ** 2, 0.0, 0.0])) is None
     assert Recovery(load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"]), kin, impl.motion,
                     impl.obstacles)._direct(q0, goal, obs, np.diag([0.05 ** 2, 0.0, 0.0])) is not None
+
+
+@pytest.mark.parametrize("refine", [False, True])
+def test_the_scan_after_a_correction_is_registered_again_with_refine_scan_registration(renderer, refine):  # noqa: F811
+    """mission.refine_scan_registration: the sensing scan that ends a correction path is
+    registered too, from the frame's pose with the registration's own spread as its prior,
+    and the belief takes that registration's correction; without it the scan is taken at
+    the belief (the frame before it registered, the correction path is exact)."""
+    from nbvs_drake.motion import REGISTERED_SIGMA
+    sc, r, s1 = renderer
+    sc = copy.deepcopy(sc)
+    sc.mission.verify_views = True
+    sc.mission.refine_scan_registration = refine
+    q0, U, states, qt, qb, P2, Xb = second_scan_in_view(sc, r)
+    loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
+    mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
+    tau_port = sim.get_system().GetInputPort("controls")
+    # the view plan's frame registers (the object in view); force the correction: a target
+    # beside where the plan ended
+    target = states[-1].copy()
+    target[0] += 0.2
+    tau_port.FixValue(ctx, AbstractValue.Make(ControlSequence(1, 0.1, U, states, "view", target)))
+    pc.GetMutableData().set_value(_cloud(P2))
+    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
+    sim.AdvanceTo(0.25)
+    b = loc.GetOutputPort("belief").Eval(lctx)
+    assert b.check == "correct"
+    fix = ControlSequence(2, 0.1, np.zeros((0, 7)), b.state[None], "correct", target)
+    tau_port.FixValue(ctx, AbstractValue.Make(fix))
+    sim.AdvanceTo(0.35)
+    status.GetMutableData().set_value(np.array([2.0, 0.0, 1.0]))
+    sim.AdvanceTo(0.45)
+    rep = mapper.GetOutputPort("scan_report").Eval(mctx).info
+    after = loc.GetOutputPort("belief").Eval(lctx)
+    assert mapper.GetOutputPort("map").Eval(mctx).scan_count == 2 and rep["integrated"]
+    assert [f["check"] for f in rep["frames"]] == ["correct"]
+    if refine:
+        assert rep["icp"] is not None and rep["icp"]["applied"]
+        np.testing.assert_allclose(rep["icp"]["prior_sigma"], REGISTERED_SIGMA, rtol=1e-3)
+        from nbvs_drake.pose import Correction
+        np.testing.assert_allclose(after.state, Correction(*rep["icp"]["correction"]).apply_state(b.state),
+                                   atol=1e-5)
+    else:
+        assert rep["icp"] is None
+        np.testing.assert_array_equal(after.state, b.state)

@@ -12,7 +12,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
 from ..config import Scenario, resolve_sensor
 from ..mapping.occupancy import OccupancyMap
-from ..motion import ControlSequence
+from ..motion import REGISTERED_SIGMA, ControlSequence
 from ..pose import EXACT_POSE_VAR, Correction
 from ..registration import (
     KnownSolids,
@@ -171,6 +171,9 @@ class Localisation(LeafSystem):
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
                                            np.random.default_rng([self.sc.seed, 13, k] + (
                                                [len(mem.frames)] if mem.frames else [])))
+            refine = self._refines(tau, mem)
+            if refine:  # the scan after a correction: registered again from the frame's pose
+                prior = prior + np.diag(np.square(REGISTERED_SIGMA))
             if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 omap: OccupancyMap = self._map.Eval(context)
                 icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,
@@ -181,9 +184,10 @@ class Localisation(LeafSystem):
                     corr = icp.correction
                     pts, free_rays, X_WC = corr.apply_points(pts), corr.apply_points(free_rays), corr.apply_pose(X_WC)
                     pending = np.zeros((3, 3))
-                else:
+                elif not refine:
                     pending = prior
                     integrate = not self.sc.mission.skip_unregistered_scans
+                # (a refining registration that fails leaves the scan at the registered frame's pose)
                 check = self._verify(tau, icp, corr.apply_state(mem.belief.state),
                                      _recoveries(mem.frames, self.sc.mission.leg_turns))
         t_register = time.perf_counter() - t1
@@ -205,6 +209,11 @@ class Localisation(LeafSystem):
         scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info, X_WC)
         belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
         return scan, belief, model, ()
+
+    def _refines(self, tau: ControlSequence, mem) -> bool:
+        """mission.refine_scan_registration: this scan ends a correction path of verified views."""
+        mi = self.sc.mission
+        return bool(mi.verify_views and mi.refine_scan_registration and tau.purpose == "correct" and mem.frames)
 
     def _verify(self, tau: ControlSequence, icp, corrected: np.ndarray, n_frames: int) -> str:
         """What a frame at the end of plan tau asks for under mission.verify_views: "" (it is

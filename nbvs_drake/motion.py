@@ -276,10 +276,10 @@ def _arc_base(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | N
     if d < 1e-4:
         return None
     dt = rc.control_dt
+    phi = math.atan2(dy, dx)  # the chord's direction
     best, best_turn = None, np.inf
     for sign in (1.0, -1.0):  # forward, backward: the direction of travel is heading (+ pi)
         h0 = q0[2] + (0.0 if sign > 0 else math.pi)
-        phi = math.atan2(dy, dx)
         f0, f2 = float(wrap_angle(phi - h0)), float(wrap_angle(q1[2] + (0.0 if sign > 0 else math.pi) - phi))
         if f0 * f2 <= 0.0:
             continue

@@ -87,6 +87,13 @@ class RobotKinematics:
         q[..., 3:] = np.clip(q[..., 3:], self.arm_lower, self.arm_upper)
         return q
 
+    def first_joint_vertical(self) -> bool:
+        """Whether the arm's first joint turns about the base's vertical axis, with no rotation
+        between the base and it (`turned_about_mount` and the director-ray test's arm-plane
+        pretest rely on it)."""
+        X0, axis = self.joint_fixed[0]
+        return bool(np.allclose(axis / np.linalg.norm(axis), [0.0, 0.0, 1.0]) and np.allclose(X0[:3, :3], np.eye(3)))
+
     def turned_about_mount(self, q: np.ndarray, headings: np.ndarray) -> np.ndarray:
         """States (H, 8) with the camera pose of state q (8,) and the base headings `headings`
         (H,): the arm's first joint is vertical, so turning the base about that joint's axis
@@ -96,9 +103,9 @@ class RobotKinematics:
         from .motion import wrap_angle
         q = np.asarray(q, float)
         headings = np.asarray(headings, float).reshape(-1)
-        X0, axis = self.joint_fixed[0]
-        if not (np.allclose(axis, [0.0, 0.0, 1.0]) and np.allclose(X0[:3, :3], np.eye(3))):
+        if not self.first_joint_vertical():
             raise ValueError("turned_about_mount needs the arm's first joint about the base's vertical")
+        X0 = self.joint_fixed[0][0]
         ox, oy = X0[0, 3], X0[1, 3]  # the first joint's axis in the base frame
         c, s = math.cos(q[2]), math.sin(q[2])
         mx, my = q[0] + c * ox - s * oy, q[1] + s * ox + c * oy  # its position in the world

@@ -42,7 +42,7 @@ from .clearance import (
     _vertical_cylinder_box_overlap,
     unpack,
 )
-from .rrt import _nearest, _sq_within
+from .rrt import _sq_within
 
 #: states visited in the first, coarse pass over a path: every STRIDE-th (and the last)
 STRIDE = 8
@@ -478,15 +478,16 @@ def _nearest_grid(Q, target, w, params, n_side, head, nxt):
     cx = _grid_cell(target[0], lo_x, cell, n_side)
     cy = _grid_cell(target[1], lo_y, cell, n_side)
     wmin = min(w[0], w[1])
+    # the target's distance to its own cell's border (0 outside the grid's bounds)
+    border = max(0.0, min(target[0] - (lo_x + cx * cell), lo_x + (cx + 1) * cell - target[0],
+                          target[1] - (lo_y + cy * cell), lo_y + (cy + 1) * cell - target[1]))
     best, best_d, best_sq = -1, np.inf, np.inf
     d = np.empty(8)
     for r in range(n_side + 1):
         if r > 0:
-            # every vertex in ring r or beyond is at least (r - 1) cells plus the target's
-            # distance to its own cell's border away in x or in y
-            fx = min(target[0] - (lo_x + cx * cell), lo_x + (cx + 1) * cell - target[0])
-            fy = min(target[1] - (lo_y + cy * cell), lo_y + (cy + 1) * cell - target[1])
-            gap = (r - 1) * cell + max(0.0, min(fx, fy))
+            # every vertex in ring r or beyond is at least (r - 1) cells plus that border away
+            # in x or in y
+            gap = (r - 1) * cell + border
             if wmin * gap * gap > best_sq:
                 break
         for i0 in range(cx - r, cx + r + 1):
@@ -509,17 +510,17 @@ def _nearest_grid(Q, target, w, params, n_side, head, nxt):
 
 
 @nb.njit(cache=True, parallel=True)
-def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter,
+def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter,
                     grid_params, n_side, head, nxt, n_chunks):
     """The extensions of `rrt.extend_batch` towards each of targets (B, 8) from the tree's
-    first n vertices Q[:n] as they stand, computed and checked in one call with the same
-    arithmetic as rrt._steer_edge and MotionPlanner.path_free: per target the nearest vertex,
+    vertices in the grid (`TreeGrid`, the rows of Q inserted so far) as they stand, computed
+    and checked in one call with the same arithmetic as rrt._steer_edge and
+    MotionPlanner.path_free: per target the nearest vertex,
     the clipped steering target, the new vertex (the end of the edge's rollout), the verdict
     FREE / COLLIDING / UNKNOWN, or -2 where the target is at the vertex or the steering gives
     no controls (COLLIDING includes an edge that leaves the arm's limits), and the edge's eq. 8
     length (its steps summed in order: equal to `motion.path_length`'s to ~1e-15 relative).
-    The nearest vertices come from the grid (`TreeGrid`: Q[:n] inserted; n_side 0: the brute
-    force). The extensions are independent: they are spread over n_chunks chunks of targets
+    The extensions are independent: they are spread over n_chunks chunks of targets
     (numba threads; each chunk its own scratch; a few chunks per thread even out their
     costs), the same outputs for any count. For the
     UNKNOWN edges, what to ask Drake: first (B,) bool (the edge's first state is undecided:
@@ -539,8 +540,7 @@ def tree_extensions(Q, n, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_ste
         scratch = _scratch(model)
         none = np.zeros(0, np.bool_)
         for b in range(c * B // n_chunks, (c + 1) * B // n_chunks):
-            i = _nearest_grid(Q, targets[b], w, grid_params, n_side, head, nxt) if n_side > 0 \
-                else _nearest(Q[:n], targets[b], w)
+            i = _nearest_grid(Q, targets[b], w, grid_params, n_side, head, nxt)
             states = _extension_states(Q, i, targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim, length)
             if states.shape[0] == 0:
                 verdict[b] = -2

@@ -31,7 +31,7 @@ class StateSampler:
         self._X_PF = np.ascontiguousarray([X for X, _ in kin.joint_fixed], dtype=np.float64)
         self._axes = np.ascontiguousarray([a / np.linalg.norm(a) for _, a in kin.joint_fixed], dtype=np.float64)
         self._X_L5C = np.ascontiguousarray(kin.X_L5C, dtype=np.float64)
-        self._plane_offset = _arm_plane_offset(self._X_PF, self._axes, self._X_L5C)
+        self._plane_offset = _arm_plane_offset(kin.first_joint_vertical(), self._X_PF, self._axes, self._X_L5C)
         #: False: the director-ray test in numpy (`views.director_ray_hits`; the same verdicts,
         #: the baseline of `nbvs bench collision`)
         self.numba_director = True
@@ -83,7 +83,7 @@ class StateSampler:
             yield from batch[self.looks_at_wbox(batch)]
 
 
-def _arm_plane_offset(X_PF: np.ndarray, axes: np.ndarray, X_L5C: np.ndarray) -> float:
+def _arm_plane_offset(first_vertical: bool, X_PF: np.ndarray, axes: np.ndarray, X_L5C: np.ndarray) -> float:
     """How far (m) the camera's optical axis can be from the arm's vertical plane (through the
     first joint's axis, at the heading base + first joint), or inf when the arm is not a
     planar arm of that kind: a first joint about the base's vertical with no rotation before
@@ -91,7 +91,7 @@ def _arm_plane_offset(X_PF: np.ndarray, axes: np.ndarray, X_L5C: np.ndarray) -> 
     their offsets along x and z only, and the optical axis along the last link's x (so a roll
     moves it off the plane by the camera's offset from that axis, no more). Lets
     `_looks_at_box` reject a state from the heading alone: the plane must come near W_box."""
-    ok = np.allclose(axes[0], [0, 0, 1]) and np.allclose(X_PF[0][:3, :3], np.eye(3))
+    ok = first_vertical  # `RobotKinematics.first_joint_vertical`
     for X, a in zip(X_PF[1:], axes[1:]):
         ok &= np.allclose(X[:3, :3], np.eye(3)) and abs(X[1, 3]) < 1e-12
         ok &= np.allclose(np.abs(a), [0, 1, 0]) or np.allclose(np.abs(a), [1, 0, 0])

@@ -72,7 +72,7 @@ class ORTPlanner:
         grid.insert(tree.q, tree.n)
         with col.timed():
             near, aim, new, verdict, length, first, offsets, und = bulk.tree_extensions(
-                tree.q, tree.n, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
+                tree.q, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
                 kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE,
                 col.counter, *grid.arrays, 4 * numba.get_num_threads())
         unknown = np.flatnonzero(verdict == UNKNOWN)
@@ -80,8 +80,7 @@ class ORTPlanner:
             asks = {b: und[offsets[b]:offsets[b + 1]] for b in unknown if not first[b]}
             for b, ok in undecided_free(asks, obstacles).items():
                 verdict[b] = FREE if ok else COLLIDING
-            first = first[unknown]
-            whole = unknown[first]  # the edge's first state undecided: the whole edge's checks
+            whole = unknown[first[unknown]]  # the edge's first state undecided: the whole edge's checks
             if len(whole):
                 states = [rollout(tree.q[near[b]], steer_together(tree.q[near[b]], aim[b], rc), rc.control_dt)
                           for b in whole]

@@ -57,6 +57,20 @@ class RegistrationConfig:
     refine_best: int = 4  #: grid starts refined to the last stage
 
 
+#: mission.fine_registration: the last stage (scan voxel, correspondence distance, m) and the
+#: point-to-plane sigma (m) it sets
+FINE_STAGE = (0.01, 0.008)
+FINE_SIGMA = 0.002
+
+
+def registration_config(sc: Scenario) -> RegistrationConfig:
+    """The registration's settings for a scenario's mission (residual cap, fine stage)."""
+    cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap())
+    if sc.mission.fine_registration:
+        cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
+    return cfg
+
+
 def region_mask(sc: Scenario, P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
     s = sc.scene
     lo = np.array([s.bbox_min[0] - cfg.region_margin_xy, s.bbox_min[1] - cfg.region_margin_xy,

@@ -97,9 +97,32 @@ def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
     the margin (a bound of the motion summed along the sequence): those are not visited,
     and the verdict is the one of visiting every state. `undecided` (bool (n,), or empty: not
     wanted): set True at the states found UNKNOWN (all of them when the verdict is UNKNOWN
-    and the first state is FREE)."""
+    and the first state is FREE). stride > 0: the first state, the last, every stride-th, then
+    the rest; stride 0: `_walk`'s leapfrog order."""
+    none = np.full(3, -1.0)
+    return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(3))
+
+
+#: the leapfrog walk (stride 0) probes this share of the last proved state's span ahead of the
+#: first state not yet proved, so the probe's own margin, if like the last, reaches back to it
+LEAP = 0.4
+
+
+@nb.njit(cache=True)
+def _walk(allq, model, scratch, stride, counter, undecided, start, end):
+    """`_verdict_of_states` with the margin of the first state given (start (3,): m_env,
+    m_self, radius; not visited when both margins are > 0) and the last state's returned in
+    end (3,) (-1 where it was not visited or has none). The order of the visits changes only
+    how many states are visited: every state is visited or proved by a visited state's margin,
+    and a COLLIDING or UNKNOWN state is always visited, so the verdict and the undecided states
+    are the same in every order. stride 0 (leapfrog): after the first and the last state, the
+    state LEAP x (the span the last visited state proved) beyond the first state not yet
+    proved, or that state itself when the last visit proved nothing."""
     n = allq.shape[0]
     reach = _reach(model)
+    end[0] = -1.0
+    end[1] = -1.0
+    end[2] = 0.0
     # cumulative along the sequence (state 0 to state t): the base's travel, its turn, the arm's
     # motion bound (any point relative to the base), and the turn weighted by the arm's motion
     # bound at the end (af) and at the start (ab) of each step
@@ -114,49 +137,68 @@ def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
         ab[t] = ab[t - 1] + arm[t - 1] * dth
     done = np.zeros(n, np.bool_)
     unknown = False
-    for phase in range(4):  # the first state, the last (most blocked extensions end in an
-        # obstacle), every stride-th, the rest
-        for i in range(n):
-            if phase == 0:
-                if i > 0:
+    span = 0
+    u = 0  # every state before u is done
+    k = -1
+    while True:
+        k += 1
+        if k == 0:
+            i = 0
+        elif k == 1:
+            i = n - 1  # most blocked extensions end in an obstacle
+        elif stride > 0:
+            i = (k - 2) * stride  # every stride-th, then the rest
+            if i >= n:
+                i = k - 2 - (n - 1) // stride - 1
+                if i >= n:
                     break
-            elif phase == 1:
-                if i < n - 1:
-                    continue
-            elif phase == 2:
-                if i % stride != 0:
-                    continue
-            if done[i]:
-                continue
+        else:
+            while u < n and done[u]:
+                u += 1
+            if u >= n:
+                break
+            i = min(n - 1, u + int(LEAP * span))
+            while i > u and done[i]:
+                i -= 1
+        if done[i]:
+            continue
+        if i == 0 and start[0] > 0.0 and start[1] > 0.0:
+            m, ms, r = start[0], start[1], start[2]
+        else:
             counter[0] += 1
             m, ms, r = _free_margin(allq[i], model, scratch)
-            if m > 0.0 and ms > 0.0:
-                # how far a point can get from where it is at state i: the base's travel, its
-                # turn times the point's distance from the base's axis (at most r at state i,
-                # plus the arm's motion since), and the arm's motion
-                done[i] = True
-                j = i + 1
-                while j < n and arm[j] - arm[i] < ms and (xy[j] - xy[i]) + (r - arm[i]) * (th[j] - th[i]) \
-                        + (af[j] - af[i]) + (arm[j] - arm[i]) < m:
-                    done[j] = True
-                    j += 1
-                j = i - 1
-                while j >= 0 and arm[i] - arm[j] < ms and (xy[i] - xy[j]) + (r + arm[i]) * (th[i] - th[j]) \
-                        - (ab[i] - ab[j]) + (arm[i] - arm[j]) < m:
-                    done[j] = True
-                    j -= 1
-                continue
-            v = _classify_one(allq[i], model, scratch)
+        if m > 0.0 and ms > 0.0:
+            if i == n - 1:
+                end[0], end[1], end[2] = m, ms, r
+            # how far a point can get from where it is at state i: the base's travel, its
+            # turn times the point's distance from the base's axis (at most r at state i,
+            # plus the arm's motion since), and the arm's motion
             done[i] = True
-            if v == FREE:
-                continue
-            if i == 0:
-                return UNKNOWN
-            if v == COLLIDING:
-                return COLLIDING
-            unknown = True
-            if undecided.shape[0]:
-                undecided[i] = True
+            j = i + 1
+            while j < n and arm[j] - arm[i] < ms and (xy[j] - xy[i]) + (r - arm[i]) * (th[j] - th[i]) \
+                    + (af[j] - af[i]) + (arm[j] - arm[i]) < m:
+                done[j] = True
+                j += 1
+            hi = j
+            j = i - 1
+            while j >= 0 and arm[i] - arm[j] < ms and (xy[i] - xy[j]) + (r + arm[i]) * (th[i] - th[j]) \
+                    - (ab[i] - ab[j]) + (arm[i] - arm[j]) < m:
+                done[j] = True
+                j -= 1
+            span = hi - j - 1
+            continue
+        span = 0
+        v = _classify_one(allq[i], model, scratch)
+        done[i] = True
+        if v == FREE:
+            continue
+        if i == 0:
+            return UNKNOWN
+        if v == COLLIDING:
+            return COLLIDING
+        unknown = True
+        if undecided.shape[0]:
+            undecided[i] = True
     return UNKNOWN if unknown else FREE
 
 
@@ -510,7 +552,7 @@ def _nearest_grid(Q, target, w, params, n_side, head, nxt):
 
 
 @nb.njit(cache=True, parallel=True)
-def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, stride, counter,
+def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, counter,
                     grid_params, n_side, head, nxt, n_chunks):
     """The extensions of `rrt.extend_batch` towards each of targets (B, 8) from the tree's
     vertices in the grid (`TreeGrid`, the rows of Q inserted so far) as they stand, computed
@@ -526,7 +568,10 @@ def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, 
     UNKNOWN edges, what to ask Drake: first (B,) bool (the edge's first state is undecided:
     ask about the whole edge), and the interpolated states of edge b that the model cannot
     decide, states[offsets[b]:offsets[b + 1]] (the edge is free iff Drake finds them all
-    free); those few edges are walked again, in order, to collect them."""
+    free); those few edges are walked again, in order, to collect them. The edges are walked
+    in `_walk`'s leapfrog order from their vertex's margin (margins (capacity, 3), the rows
+    of Q so far: m_env, m_self, radius, or -1 where not known), and end (B, 3) returns the
+    margin of each edge's last state (the vertex it adds) where the walk computed one."""
     B = targets.shape[0]
     near = np.empty(B, np.int64)
     length = np.zeros(B)
@@ -534,6 +579,7 @@ def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, 
     new = np.empty((B, 8))
     verdict = np.empty(B, np.int8)
     counts = np.zeros(B, np.int64)
+    end = np.full((B, 3), -1.0)
     model = unpack(F, I, H)
     n_chunks = max(1, min(n_chunks, B))
     for c in nb.prange(n_chunks):
@@ -549,8 +595,8 @@ def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, 
             if not _within_arm_limits(states, arm_lo, arm_hi):
                 verdict[b] = COLLIDING
                 continue
-            verdict[b] = _verdict_of_states(interpolate(states, max_step), model, scratch, stride,
-                                            counts[b:b + 1], none)
+            verdict[b] = _walk(interpolate(states, max_step), model, scratch, 0, counts[b:b + 1], none,
+                               margins[i], end[b])
     counter[0] += counts.sum()
     # the undecided states of the UNKNOWN edges (the same walk, with the states marked)
     first = np.zeros(B, np.bool_)
@@ -564,7 +610,7 @@ def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, 
         allq = interpolate(_extension_states(Q, near[b], targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim,
                                              length), max_step)
         und = np.zeros(allq.shape[0], np.bool_)
-        _verdict_of_states(allq, model, scratch, stride, counts[b:b + 1], und)
+        _walk(allq, model, scratch, 0, counts[b:b + 1], und, margins[near[b]], np.empty(3))
         idx = np.flatnonzero(und)
         first[b] = idx.shape[0] == 0
         parts.append(allq[idx])
@@ -575,7 +621,7 @@ def tree_extensions(Q, targets, w, step, rc, arm_lo, arm_hi, F, I, H, max_step, 
         if verdict[b] == UNKNOWN:
             out[offsets[b]:offsets[b + 1]] = parts[k]
             k += 1
-    return near, aim, new, verdict, length, first, offsets, out
+    return near, aim, new, verdict, length, first, offsets, out, end
 
 
 @nb.njit(cache=True)

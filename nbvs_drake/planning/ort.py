@@ -50,30 +50,33 @@ class ORTPlanner:
         budget = ITERATIONS_PER_VERTEX * p.ort_vertices
         bulk_growth = self.motion.bulk_checks and obstacles.collision.certificate is not None
         grid = bulk.TreeGrid(self.sc.robot.xy_bounds, tree.q.shape[0]) if bulk_growth else None
+        # each vertex's clearance margins (bulk._walk), where its edge's check computed them
+        margins = np.full((tree.q.shape[0], 3), -1.0) if bulk_growth else None
         while tree.n < p.ort_vertices + 1 and it < budget:
             b = min(p.ort_batch, budget - it)
             it += b
             batch = np.stack([next(targets) for _ in range(b)])
             if bulk_growth:
-                self._extend_bulk(tree, batch, w, obstacles, grid)
+                self._extend_bulk(tree, batch, w, obstacles, grid, margins)
             else:
                 extend_batch(tree, batch, p.tree_step, w, self.sc.robot, paths_free, self.sampler.kin.clip_arm)
         return tree, it
 
     def _extend_bulk(self, tree: Tree, batch: np.ndarray, w: np.ndarray, obstacles: ObstacleModel,
-                     grid: bulk.TreeGrid):
+                     grid: bulk.TreeGrid, margins: np.ndarray):
         """`extend_batch` with the steering and the checks of the whole batch in one numba call
         (bulk.tree_extensions: the same nearest vertices, edges and verdicts); the edges it
         cannot decide go through MotionPlanner.tree_paths_free (the certificate, then Drake).
         The same vertices are added in the same order (their eq. 8 lengths equal to ~1e-15
-        relative); their controls are computed when a path needs them."""
+        relative); their controls are computed when a path needs them. `margins` keeps each
+        vertex's clearance margins, so the edges from it start from them."""
         p, rc, kin = self.sc.planner, self.sc.robot, self.sampler.kin
         col = obstacles.collision
         grid.insert(tree.q, tree.n)
         with col.timed():
-            near, aim, new, verdict, length, first, offsets, und = bulk.tree_extensions(
-                tree.q, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
-                kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step, bulk.STRIDE,
+            near, aim, new, verdict, length, first, offsets, und, end = bulk.tree_extensions(
+                tree.q, margins, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
+                kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step,
                 col.counter, *grid.arrays, 4 * numba.get_num_threads())
         unknown = np.flatnonzero(verdict == UNKNOWN)
         if len(unknown):  # Drake about the states the model could not decide (the rest proved free)
@@ -89,7 +92,7 @@ class ORTPlanner:
         for b in np.flatnonzero(verdict == FREE):
             if tree.n >= tree.q.shape[0]:
                 break
-            tree.add(int(near[b]), new[b], None, float(length[b]), aim[b])
+            margins[tree.add(int(near[b]), new[b], None, float(length[b]), aim[b])] = end[b]
 
     def plan(self, request: PlanRequest) -> PlanResult:
         p = self.sc.planner

@@ -16,13 +16,13 @@ from ..motion import REGISTERED_SIGMA, ControlSequence
 from ..pose import EXACT_POSE_VAR, Correction
 from ..registration import (
     KnownSolids,
-    RegistrationConfig,
     RegistrationModel,
     ScanView,
     environment_model,
     motion_prior,
     region_mask,
     register_scan,
+    registration_config,
 )
 from ..robot import RobotKinematics
 from ..sensor import clean_scan, no_return_rays, ray_directions
@@ -118,7 +118,7 @@ class Localisation(LeafSystem):
     def __init__(self, sc: Scenario, kin: RobotKinematics, q0, dt: float):
         super().__init__()
         self.sc = sc
-        self.reg_cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap())
+        self.reg_cfg = registration_config(sc)
         self._solids = KnownSolids.of(sc)
         self._dirs = ray_directions(sc.sensor, 1)[0]
         self._z_far = resolve_sensor(sc.sensor).z_far

@@ -448,7 +448,7 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
                                     "proved_free": float(proved.mean())}
     sc = load_scenario()
     sc.planner.ort_vertices = ort_vertices
-    times, trees = {}, {}
+    times, trees, visits = {}, {}, {}
     # Drake alone; the certificate with the Python growth (rrt.extend_batch) and the targets'
     # director-ray test in numpy, as before the bulk kernels; the numba growth
     # (bulk.tree_extensions: clearance margins, only undecided states to Drake) with the numba
@@ -466,9 +466,11 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
         numba.set_num_threads(1 if label == "bulk_1thread" else threads)
         best = np.inf
         for _ in range(2):  # the best of two growths each (the first may load compiled kernels)
+            c0 = int(obstacles.collision.counter[0])
             t = time.perf_counter()
             trees[label], _ = ort.grow(np.array(sc.robot.start, float), np.random.default_rng(seed), obstacles)
             best = min(best, time.perf_counter() - t)
+            visits[label] = int(obstacles.collision.counter[0]) - c0
         times[label] = best
     numba.set_num_threads(threads)
     a = trees["drake"]
@@ -481,6 +483,9 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
                            "speedup": times["drake"] / times["certified"],
                            "bulk_speedup": times["certified"] / times["bulk"],
                            "bulk_speedup_1thread": times["certified"] / times["bulk_1thread"], "vertices": a.n - 1}
+    # the states the certificate classified (a growth's; the bulk growth skips those its
+    # clearance margins prove)
+    out["ort_growth_states_classified"] = {"certified": visits["certified"], "bulk": visits["bulk"]}
     return out
 
 

@@ -320,6 +320,60 @@ def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
 
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
+def test_each_pairs_clearance_proves_every_state_within_it_free(kin, world, request):
+    """clearance._free_margins' per-pair clearances with clearance._pair_reach: states moved
+    so that every robot pair's relative motion bound (only the joints between its two
+    geometries) uses up 0.99 of that pair's clearance, and the environment's bound 0.99 of
+    m_env, are FREE by the certificate and by Drake, though most move the arm more than the
+    least pair clearance would allow; near-contact states included."""
+    import numba as nb
+
+    from nbvs_drake.planning.clearance import _arm_motion_bound, _free_margins, _pair_reach, _reach, _scratch, unpack
+
+    @nb.njit
+    def margins(q, F, I, H):
+        model = unpack(F, I, H)
+        s = _scratch(model)
+        P = model[19].shape[0]
+        out = np.empty((q.shape[0], 3 + P))
+        pc = np.empty(P)
+        for i in range(q.shape[0]):
+            out[i, 0], out[i, 1], out[i, 2] = _free_margins(q[i], model, s, pc)
+            out[i, 3:] = pc
+        return out, _reach(model), _pair_reach(model)
+
+    @nb.njit
+    def arm_bound(a, b, reach):
+        return _arm_motion_bound(a, b, reach)
+
+    sc, model = request.getfixturevalue(world)
+    q = random_states(kin, 1500, seed=6)
+    free = drake_free(model, q)
+    q = np.concatenate([q, near_contacts(model, q, free, n_pairs=150, steps=12, both=True)])
+    m, reach, W = margins(q, *model.certificate.model)
+    ok = (m[:, 0] > 0) & (m[:, 1] > 0)
+    assert np.allclose(m[ok, 1], m[ok, 3:].min(axis=1))
+    rng = np.random.default_rng(9)
+    moved, beyond = [], 0
+    for qi, row in zip(q[ok], m[ok]):
+        me, ms, r, pc = row[0], row[1], row[2], row[3:]
+        for _ in range(4):
+            d = rng.normal(0, 1, 8) * np.array([0.05, 0.05, 0.05, 0.1, 0.1, 0.1, 0.1, 0.1])
+            arm = arm_bound(qi, qi + d, reach)
+            total = np.hypot(d[0], d[1]) + (r + arm) * abs(d[2]) + arm
+            pair = W @ np.abs(d[3:])
+            f = 0.99 * min(me / total, np.min(np.where(pair > 0, pc / np.maximum(pair, 1e-300), np.inf)))
+            b = qi + f * d
+            if np.all(kin.arm_within_limits(b)):
+                moved.append(b)
+                beyond += f * arm > ms
+    moved = np.array(moved)
+    assert len(moved) > 500 and beyond > 0.1 * len(moved)
+    assert np.all(model.certificate.classify(moved) == FREE)
+    assert np.all(drake_free(model, moved))
+
+
+@pytest.mark.parametrize("world", ["clutter", "voxels"])
 def test_skipping_by_margins_gives_the_verdict_of_every_state(kin, world, request):
     """bulk.path_verdict (states proved free by a neighbour's margin are not visited) against
     the certificate's verdict of every interpolated state, on steering edges from random and
@@ -392,3 +446,46 @@ def test_the_tree_grids_nearest_vertex_is_the_brute_forces():
         T[:50] = Q[rng.integers(0, n, 50)]  # targets on vertices
         for t in T:
             assert bulk._nearest_grid(Q, t, w, *grid.arrays) == _nearest(Q[:n], t, w)
+
+
+@pytest.mark.parametrize("world", ["clutter", "voxels"])
+def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_strided_walk(kin, world, request):
+    """bulk._walk in the ORT's leapfrog order (stride 0), from a start margin given or not,
+    against the strided order (the first, the last, every 8th, the rest): the same verdict,
+    and the same undecided states where it is UNKNOWN, on edges from free states towards random and near-contact
+    states; the margins it returns for the last state are the ones `_free_margins` computes
+    there (how many states each order visits is `nbvs bench collision`'s)."""
+    from nbvs_drake.planning.clearance import _free_margins, _scratch, unpack
+    sc, model = request.getfixturevalue(world)
+    q = random_states(kin, 1500, seed=31)
+    free = drake_free(model, q)
+    near = near_contacts(model, q, free, n_pairs=150, steps=22, both=True)
+    rng = np.random.default_rng(8)
+    a = q[free][:300]
+    b = np.concatenate([kin.clip_arm(a[:150] + rng.normal(0, 0.5, (150, 8))), near[:150]])
+    m = unpack(*model.certificate.model)
+    scratch = _scratch(m)
+    seen = set()
+    for x, y in zip(a, b):
+        c = steer_together(x, y, sc.robot)
+        if len(c) == 0:
+            continue
+        allq = bulk.interpolate(rollout(x, c, sc.robot.control_dt), 0.04)
+        P = len(model.certificate.pairs)
+        pc = np.empty(P)
+        start = np.concatenate([_free_margins(allq[0], m, scratch, pc), pc])
+        out = {}
+        for stride, s0 in ((8, np.full(3 + P, -1.0)), (0, np.full(3 + P, -1.0)), (0, start)):
+            und = np.zeros(len(allq), bool)
+            cnt = np.zeros(1, np.int64)
+            end = np.empty(3 + P)
+            v = bulk._walk(allq, m, scratch, stride, cnt, und, s0, end)
+            out[(stride, s0[0] > 0)] = (v, np.flatnonzero(und).tolist())
+            if end[0] > 0:
+                np.testing.assert_allclose(end, np.concatenate([_free_margins(allq[-1], m, scratch, pc), pc]))
+        ref = out[(8, False)]
+        assert all(o[0] == ref[0] for o in out.values())
+        if ref[0] == UNKNOWN:  # (a COLLIDING walk stops at the first collision it visits)
+            assert all(o[1] == ref[1] for o in out.values())
+        seen.add(ref[0])
+    assert {FREE, COLLIDING, UNKNOWN} <= seen

@@ -33,7 +33,8 @@ from .clearance import (
     UNKNOWN,
     _arm_motion_bound,
     _classify_one,
-    _free_margin,
+    _free_margins,
+    _pair_reach,
     _point_box,
     _pose_robot,
     _reach,
@@ -99,8 +100,8 @@ def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
     wanted): set True at the states found UNKNOWN (all of them when the verdict is UNKNOWN
     and the first state is FREE). stride > 0: the first state, the last, every stride-th, then
     the rest; stride 0: `_walk`'s leapfrog order."""
-    none = np.full(3, -1.0)
-    return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(3))
+    none = np.full(3 + model[19].shape[0], -1.0)
+    return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(none.shape[0]))
 
 
 #: the leapfrog walk (stride 0) probes this share of the last proved state's span ahead of the
@@ -110,23 +111,29 @@ LEAP = 0.4
 
 @nb.njit(cache=True)
 def _walk(allq, model, scratch, stride, counter, undecided, start, end):
-    """`_verdict_of_states` with the margin of the first state given (start (3,): m_env,
-    m_self, radius; not visited when both margins are > 0) and the last state's returned in
-    end (3,) (-1 where it was not visited or has none). The order of the visits changes only
-    how many states are visited: every state is visited or proved by a visited state's margin,
-    and a COLLIDING or UNKNOWN state is always visited, so the verdict and the undecided states
-    are the same in every order. stride 0 (leapfrog): after the first and the last state, the
-    state LEAP x (the span the last visited state proved) beyond the first state not yet
-    proved, or that state itself when the last visit proved nothing."""
+    """`_verdict_of_states` with the margins of the first state given (start (3 + P,): m_env,
+    m_self, radius and the P robot pairs' clearances, `clearance._free_margins`; not visited
+    when both margins are > 0) and the last state's returned in end (3 + P,) (m_env -1 where it
+    was not visited or has none). A pair's clearance bounds the relative motion of its two
+    geometries (`clearance._pair_reach`: only the joints between them count), which proves
+    more states than the robot's least pair clearance against the whole arm's motion. The
+    order of the visits changes only how many states are visited: every state is visited or
+    proved by a visited state's margins, and a COLLIDING or UNKNOWN state is always visited,
+    so the verdict and the undecided states are the same in every order. stride 0 (leapfrog):
+    after the first and the last state, the state LEAP x (the span the last visited state
+    proved) beyond the first state not yet proved, or that state itself when the last visit
+    proved nothing."""
     n = allq.shape[0]
     reach = _reach(model)
+    W = _pair_reach(model)
+    P = W.shape[0]
     end[0] = -1.0
     end[1] = -1.0
-    end[2] = 0.0
     # cumulative along the sequence (state 0 to state t): the base's travel, its turn, the arm's
-    # motion bound (any point relative to the base), and the turn weighted by the arm's motion
-    # bound at the end (af) and at the start (ab) of each step
+    # motion bound (any point relative to the base), the turn weighted by the arm's motion
+    # bound at the end (af) and at the start (ab) of each step, and each joint's travel (cq)
     xy, th, arm, af, ab = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    cq = np.zeros((n, 5))
     for t in range(1, n):
         a, b = allq[t - 1], allq[t]
         dth = abs(b[2] - a[2])
@@ -135,6 +142,9 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
         arm[t] = arm[t - 1] + _arm_motion_bound(a, b, reach)
         af[t] = af[t - 1] + arm[t] * dth
         ab[t] = ab[t - 1] + arm[t - 1] * dth
+        for k in range(5):
+            cq[t, k] = cq[t - 1, k] + abs(b[3 + k] - a[3 + k])
+    pc = np.empty(P)
     done = np.zeros(n, np.bool_)
     unknown = False
     span = 0
@@ -164,25 +174,30 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
             continue
         if i == 0 and start[0] > 0.0 and start[1] > 0.0:
             m, ms, r = start[0], start[1], start[2]
+            for j in range(P):
+                pc[j] = start[3 + j]
         else:
             counter[0] += 1
-            m, ms, r = _free_margin(allq[i], model, scratch)
+            m, ms, r = _free_margins(allq[i], model, scratch, pc)
         if m > 0.0 and ms > 0.0:
             if i == n - 1:
                 end[0], end[1], end[2] = m, ms, r
+                for j in range(P):
+                    end[3 + j] = pc[j]
             # how far a point can get from where it is at state i: the base's travel, its
             # turn times the point's distance from the base's axis (at most r at state i,
-            # plus the arm's motion since), and the arm's motion
+            # plus the arm's motion since), and the arm's motion; and each pair's relative
+            # motion
             done[i] = True
             j = i + 1
-            while j < n and arm[j] - arm[i] < ms and (xy[j] - xy[i]) + (r - arm[i]) * (th[j] - th[i]) \
-                    + (af[j] - af[i]) + (arm[j] - arm[i]) < m:
+            while j < n and (xy[j] - xy[i]) + (r - arm[i]) * (th[j] - th[i]) + (af[j] - af[i]) \
+                    + (arm[j] - arm[i]) < m and (arm[j] - arm[i] < ms or _pairs_clear(W, cq, i, j, pc)):
                 done[j] = True
                 j += 1
             hi = j
             j = i - 1
-            while j >= 0 and arm[i] - arm[j] < ms and (xy[i] - xy[j]) + (r + arm[i]) * (th[i] - th[j]) \
-                    - (ab[i] - ab[j]) + (arm[i] - arm[j]) < m:
+            while j >= 0 and (xy[i] - xy[j]) + (r + arm[i]) * (th[i] - th[j]) - (ab[i] - ab[j]) \
+                    + (arm[i] - arm[j]) < m and (arm[i] - arm[j] < ms or _pairs_clear(W, cq, j, i, pc)):
                 done[j] = True
                 j -= 1
             span = hi - j - 1
@@ -200,6 +215,19 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
         if undecided.shape[0]:
             undecided[i] = True
     return UNKNOWN if unknown else FREE
+
+
+@nb.njit(cache=True, inline="always")
+def _pairs_clear(W, cq, a, b, pc):
+    """Every robot pair j stays clear from state a to state b (a < b): its relative motion
+    bound sum_k W[j, k] (the joints' travel from a to b) is below its clearance pc[j]."""
+    for j in range(W.shape[0]):
+        d = 0.0
+        for k in range(5):
+            d += W[j, k] * (cq[b, k] - cq[a, k])
+        if d >= pc[j]:
+            return False
+    return True
 
 
 @nb.njit(cache=True)
@@ -569,9 +597,10 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
     ask about the whole edge), and the interpolated states of edge b that the model cannot
     decide, states[offsets[b]:offsets[b + 1]] (the edge is free iff Drake finds them all
     free); those few edges are walked again, in order, to collect them. The edges are walked
-    in `_walk`'s leapfrog order from their vertex's margin (margins (capacity, 3), the rows
-    of Q so far: m_env, m_self, radius, or -1 where not known), and end (B, 3) returns the
-    margin of each edge's last state (the vertex it adds) where the walk computed one."""
+    in `_walk`'s leapfrog order from their vertex's margins (margins (capacity, 3 + P), the
+    rows of Q so far: m_env, m_self, radius and the robot pairs' clearances, m_env -1 where
+    not known), and end (B, 3 + P) returns the margins of each edge's last state (the vertex
+    it adds) where the walk computed them."""
     B = targets.shape[0]
     near = np.empty(B, np.int64)
     length = np.zeros(B)
@@ -579,7 +608,7 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
     new = np.empty((B, 8))
     verdict = np.empty(B, np.int8)
     counts = np.zeros(B, np.int64)
-    end = np.full((B, 3), -1.0)
+    end = np.full((B, margins.shape[1]), -1.0)
     model = unpack(F, I, H)
     n_chunks = max(1, min(n_chunks, B))
     for c in nb.prange(n_chunks):
@@ -610,7 +639,7 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
         allq = interpolate(_extension_states(Q, near[b], targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim,
                                              length), max_step)
         und = np.zeros(allq.shape[0], np.bool_)
-        _walk(allq, model, scratch, 0, counts[b:b + 1], und, margins[near[b]], np.empty(3))
+        _walk(allq, model, scratch, 0, counts[b:b + 1], und, margins[near[b]], np.empty(margins.shape[1]))
         idx = np.flatnonzero(und)
         first[b] = idx.shape[0] == 0
         parts.append(allq[idx])

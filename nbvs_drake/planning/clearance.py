@@ -522,6 +522,34 @@ def _reach(model):
     return out
 
 
+@nb.njit(cache=True)
+def _pair_reach(model):
+    """(P, 5): for each robot pair (geometries a, c on bodies b_a <= b_c), how far joint k can
+    move a point of the pair's second geometry relative to the first per radian: the chain's
+    link offsets from joint k to body b_c plus the geometry's offset and bounding radius, for
+    the joints between the two bodies (b_a <= k < b_c; joint k turns body k + 1 and the
+    bodies after it), 0 for the others, which move both alike. sum_k W[j, k] |dq_k| bounds the
+    pair's relative motion along a straight line in state space, and is at most
+    `_arm_motion_bound`'s."""
+    X_PF, g_body, g_X, g_bound, pairs = model[0], model[2], model[3], model[7], model[19]
+    link = np.empty(5)
+    for i in range(5):
+        link[i] = math.sqrt(X_PF[i, 0, 3] ** 2 + X_PF[i, 1, 3] ** 2 + X_PF[i, 2, 3] ** 2)
+    W = np.zeros((pairs.shape[0], 5))
+    for j in range(pairs.shape[0]):
+        a, c = pairs[j, 0], pairs[j, 1]
+        if g_body[a] > g_body[c]:
+            a, c = c, a
+        lo, hi = g_body[a], g_body[c]
+        own = math.sqrt(g_X[c, 0, 3] ** 2 + g_X[c, 1, 3] ** 2 + g_X[c, 2, 3] ** 2) + g_bound[c]
+        for k in range(lo, hi):
+            rk = own
+            for i in range(k + 1, hi):
+                rk += link[i]
+            W[j, k] = rk
+    return W
+
+
 @nb.njit(cache=True, inline="always")
 def _arm_motion_bound(a, b, reach):
     """An upper bound of how far any point of the robot moves relative to any other between the
@@ -541,10 +569,18 @@ def _free_margin(qn, model, scratch):
     the least clearance beyond its padding (and EPS) of every robot geometry to every
     environment box, and of every robot pair Drake checks. Both > 0 prove the state FREE;
     otherwise it says nothing (ask `_classify_one`). Bounding spheres first: a pair's finer
-    test runs only when its bound could lower the margin. The vertical cylinders keep their
+    test runs only when its bound is not positive. The vertical cylinders keep their
     height (`FreeCertificate`), so a vertical gap to a box turned only about z never shrinks.
     radius: the largest horizontal distance of a point of the robot from the base's vertical
     axis at qn (a turn of the base by dtheta moves no point further than radius |dtheta|)."""
+    return _free_margins(qn, model, scratch, np.empty(model[19].shape[0]))
+
+
+@nb.njit(cache=True)
+def _free_margins(qn, model, scratch, pair_c):
+    """`_free_margin`, with each robot pair's own clearance in pair_c (P,) (filled where both
+    margins are > 0; m_self is their least): pair j stays clear while the motion of its second
+    geometry relative to its first stays below pair_c[j] (`_pair_reach`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
     G, M, P = g_body.shape[0], e_p.shape[0], pairs.shape[0]
@@ -592,8 +628,6 @@ def _free_margin(qn, model, scratch):
         thr = pair_pad[j] + EPS
         dd = math.sqrt((gp[a, 0] - gp[c2, 0]) ** 2 + (gp[a, 1] - gp[c2, 1]) ** 2 + (gp[a, 2] - gp[c2, 2]) ** 2)
         c = dd - g_bound[a] - g_bound[c2] - thr
-        if c >= own:
-            continue
         if c <= 0.0:
             if g_vert[a] and g_vert[c2]:
                 gxy = max(math.sqrt((gp[a, 0] - gp[c2, 0]) ** 2 + (gp[a, 1] - gp[c2, 1]) ** 2) - g_r[a] - g_r[c2],
@@ -614,6 +648,7 @@ def _free_margin(qn, model, scratch):
                                              + (sw[k, 2] - sw[k2, 2]) ** 2) - s_rho[k] - s_rho[k2] - thr)
             if c <= 0.0:
                 return c, c, 0.0
+        pair_c[j] = c
         own = min(own, c)
     radius = 0.0
     for g in range(G):

@@ -320,27 +320,37 @@ def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
 
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
-def test_each_pairs_clearance_proves_every_state_within_it_free(kin, world, request):
-    """clearance._free_margins' per-pair clearances with clearance._pair_reach: states moved
-    so that every robot pair's relative motion bound (only the joints between its two
-    geometries) uses up 0.99 of that pair's clearance, and the environment's bound 0.99 of
-    m_env, are FREE by the certificate and by Drake, though most move the arm more than the
-    least pair clearance would allow; near-contact states included."""
+def test_each_pairs_and_geometrys_clearance_proves_every_state_within_it_free(kin, world, request):
+    """clearance._free_margins' per-pair and per-geometry clearances: states moved so that
+    every robot pair's relative motion bound (`_pair_reach`: only the joints between its two
+    geometries) uses up 0.99 of that pair's clearance, and every geometry's own motion bound
+    (`_geometry_reach`, its own radius for the base's turn) 0.99 of its clearance to the
+    environment, are FREE by the certificate and by Drake, though many move further than the
+    whole robot's bound against the least clearances would allow; near-contact states
+    included."""
     import numba as nb
 
-    from nbvs_drake.planning.clearance import _arm_motion_bound, _free_margins, _pair_reach, _reach, _scratch, unpack
+    from nbvs_drake.planning.clearance import (
+        _arm_motion_bound,
+        _free_margins,
+        _geometry_reach,
+        _pair_reach,
+        _reach,
+        _scratch,
+        unpack,
+    )
 
     @nb.njit
     def margins(q, F, I, H):
         model = unpack(F, I, H)
         s = _scratch(model)
-        P = model[19].shape[0]
-        out = np.empty((q.shape[0], 3 + P))
-        pc = np.empty(P)
+        P, G = model[19].shape[0], model[2].shape[0]
+        out = np.empty((q.shape[0], 3 + P + 2 * G))
+        pc, gc, gr = np.empty(P), np.empty(G), np.empty(G)
         for i in range(q.shape[0]):
-            out[i, 0], out[i, 1], out[i, 2] = _free_margins(q[i], model, s, pc)
-            out[i, 3:] = pc
-        return out, _reach(model), _pair_reach(model)
+            out[i, 0], out[i, 1], out[i, 2] = _free_margins(q[i], model, s, pc, gc, gr)
+            out[i, 3:3 + P], out[i, 3 + P:3 + P + G], out[i, 3 + P + G:] = pc, gc, gr
+        return out, _reach(model), _pair_reach(model), _geometry_reach(model)[0]
 
     @nb.njit
     def arm_bound(a, b, reach):
@@ -350,25 +360,31 @@ def test_each_pairs_clearance_proves_every_state_within_it_free(kin, world, requ
     q = random_states(kin, 1500, seed=6)
     free = drake_free(model, q)
     q = np.concatenate([q, near_contacts(model, q, free, n_pairs=150, steps=12, both=True)])
-    m, reach, W = margins(q, *model.certificate.model)
+    m, reach, W, GW = margins(q, *model.certificate.model)
+    P, G = len(W), len(GW)
     ok = (m[:, 0] > 0) & (m[:, 1] > 0)
-    assert np.allclose(m[ok, 1], m[ok, 3:].min(axis=1))
+    assert np.allclose(m[ok, 1], m[ok, 3:3 + P].min(axis=1))
+    assert np.allclose(m[ok, 0], m[ok, 3 + P:3 + P + G].min(axis=1))
+    assert np.allclose(m[ok, 2], m[ok, 3 + P + G:].max(axis=1))
     rng = np.random.default_rng(9)
     moved, beyond = [], 0
     for qi, row in zip(q[ok], m[ok]):
-        me, ms, r, pc = row[0], row[1], row[2], row[3:]
+        me, ms, r = row[0], row[1], row[2]
+        pc, gc, gr = row[3:3 + P], row[3 + P:3 + P + G], row[3 + P + G:]
         for _ in range(4):
             d = rng.normal(0, 1, 8) * np.array([0.05, 0.05, 0.05, 0.1, 0.1, 0.1, 0.1, 0.1])
             arm = arm_bound(qi, qi + d, reach)
-            total = np.hypot(d[0], d[1]) + (r + arm) * abs(d[2]) + arm
+            own = GW @ np.abs(d[3:])
+            geo = np.hypot(d[0], d[1]) + (gr + own) * abs(d[2]) + own
             pair = W @ np.abs(d[3:])
-            f = 0.99 * min(me / total, np.min(np.where(pair > 0, pc / np.maximum(pair, 1e-300), np.inf)))
+            f = 0.99 * min(np.min(gc / geo), np.min(np.where(pair > 0, pc / np.maximum(pair, 1e-300), np.inf)))
             b = qi + f * d
             if np.all(kin.arm_within_limits(b)):
                 moved.append(b)
-                beyond += f * arm > ms
+                whole = np.hypot(d[0], d[1]) + (r + arm) * abs(d[2]) + arm
+                beyond += f * whole > me or f * arm > ms
     moved = np.array(moved)
-    assert len(moved) > 500 and beyond > 0.1 * len(moved)
+    assert len(moved) > 500 and beyond > 0.2 * len(moved)
     assert np.all(model.certificate.classify(moved) == FREE)
     assert np.all(drake_free(model, moved))
 
@@ -471,18 +487,20 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
         if len(c) == 0:
             continue
         allq = bulk.interpolate(rollout(x, c, sc.robot.control_dt), 0.04)
-        P = len(model.certificate.pairs)
-        pc = np.empty(P)
-        start = np.concatenate([_free_margins(allq[0], m, scratch, pc), pc])
+        P, G = len(model.certificate.pairs), len(model.certificate.g_body)
+        pc, gc, gr = np.empty(P), np.empty(G), np.empty(G)
+        start = np.concatenate([_free_margins(allq[0], m, scratch, pc, gc, gr), pc, gc, gr])
+        n_m = model.certificate.margin_size
         out = {}
-        for stride, s0 in ((8, np.full(3 + P, -1.0)), (0, np.full(3 + P, -1.0)), (0, start)):
+        for stride, s0 in ((8, np.full(n_m, -1.0)), (0, np.full(n_m, -1.0)), (0, start)):
             und = np.zeros(len(allq), bool)
             cnt = np.zeros(1, np.int64)
-            end = np.empty(3 + P)
+            end = np.empty(n_m)
             v = bulk._walk(allq, m, scratch, stride, cnt, und, s0, end)
             out[(stride, s0[0] > 0)] = (v, np.flatnonzero(und).tolist())
             if end[0] > 0:
-                np.testing.assert_allclose(end, np.concatenate([_free_margins(allq[-1], m, scratch, pc), pc]))
+                np.testing.assert_allclose(end, np.concatenate([_free_margins(allq[-1], m, scratch, pc, gc, gr), pc, gc,
+                                                                gr]))
         ref = out[(8, False)]
         assert all(o[0] == ref[0] for o in out.values())
         if ref[0] == UNKNOWN:  # (a COLLIDING walk stops at the first collision it visits)

@@ -34,6 +34,7 @@ from .clearance import (
     _arm_motion_bound,
     _classify_one,
     _free_margins,
+    _geometry_reach,
     _pair_reach,
     _point_box,
     _pose_robot,
@@ -100,7 +101,7 @@ def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
     wanted): set True at the states found UNKNOWN (all of them when the verdict is UNKNOWN
     and the first state is FREE). stride > 0: the first state, the last, every stride-th, then
     the rest; stride 0: `_walk`'s leapfrog order."""
-    none = np.full(3 + model[19].shape[0], -1.0)
+    none = np.full(3 + model[19].shape[0] + 2 * model[2].shape[0], -1.0)
     return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(none.shape[0]))
 
 
@@ -111,12 +112,14 @@ LEAP = 0.4
 
 @nb.njit(cache=True)
 def _walk(allq, model, scratch, stride, counter, undecided, start, end):
-    """`_verdict_of_states` with the margins of the first state given (start (3 + P,): m_env,
-    m_self, radius and the P robot pairs' clearances, `clearance._free_margins`; not visited
-    when both margins are > 0) and the last state's returned in end (3 + P,) (m_env -1 where it
-    was not visited or has none). A pair's clearance bounds the relative motion of its two
-    geometries (`clearance._pair_reach`: only the joints between them count), which proves
-    more states than the robot's least pair clearance against the whole arm's motion. The
+    """`_verdict_of_states` with the margins of the first state given (start (3 + P + 2G,):
+    m_env, m_self, radius, the P robot pairs' clearances, the G geometries' clearances and
+    radii, `clearance._free_margins`; not visited when m_env and m_self are > 0) and the last
+    state's returned in end (m_env -1 where it was not visited or has none). A state further
+    along is proved by the whole robot's bound against the least clearance, or else by each
+    geometry's own motion bound (only the joints before its body, and its own radius for the
+    base's turn, `clearance._geometry_reach`) against its own clearance; likewise each pair's
+    relative motion (`clearance._pair_reach`: only the joints between its two geometries). The
     order of the visits changes only how many states are visited: every state is visited or
     proved by a visited state's margins, and a COLLIDING or UNKNOWN state is always visited,
     so the verdict and the undecided states are the same in every order. stride 0 (leapfrog):
@@ -126,7 +129,8 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
     n = allq.shape[0]
     reach = _reach(model)
     W = _pair_reach(model)
-    P = W.shape[0]
+    GW = _geometry_reach(model)[0]
+    P, G = W.shape[0], GW.shape[0]
     end[0] = -1.0
     end[1] = -1.0
     # cumulative along the sequence (state 0 to state t): the base's travel, its turn, the arm's
@@ -144,7 +148,8 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
         ab[t] = ab[t - 1] + arm[t - 1] * dth
         for k in range(5):
             cq[t, k] = cq[t - 1, k] + abs(b[3 + k] - a[3 + k])
-    pc = np.empty(P)
+    mg = np.empty(start.shape[0])  # the last visited state's margins
+    pc, gc, gr = mg[3:3 + P], mg[3 + P:3 + P + G], mg[3 + P + G:]
     done = np.zeros(n, np.bool_)
     unknown = False
     span = 0
@@ -173,31 +178,38 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
         if done[i]:
             continue
         if i == 0 and start[0] > 0.0 and start[1] > 0.0:
-            m, ms, r = start[0], start[1], start[2]
-            for j in range(P):
-                pc[j] = start[3 + j]
+            mg[:] = start
         else:
             counter[0] += 1
-            m, ms, r = _free_margins(allq[i], model, scratch, pc)
+            mg[0], mg[1], mg[2] = _free_margins(allq[i], model, scratch, pc, gc, gr)
+        m, ms, r = mg[0], mg[1], mg[2]
         if m > 0.0 and ms > 0.0:
             if i == n - 1:
-                end[0], end[1], end[2] = m, ms, r
-                for j in range(P):
-                    end[3 + j] = pc[j]
+                end[:] = mg
             # how far a point can get from where it is at state i: the base's travel, its
             # turn times the point's distance from the base's axis (at most r at state i,
-            # plus the arm's motion since), and the arm's motion; and each pair's relative
-            # motion
+            # plus the arm's motion since), and the arm's motion; per geometry, and each
+            # pair's relative motion
             done[i] = True
             j = i + 1
-            while j < n and (xy[j] - xy[i]) + (r - arm[i]) * (th[j] - th[i]) + (af[j] - af[i]) \
-                    + (arm[j] - arm[i]) < m and (arm[j] - arm[i] < ms or _pairs_clear(W, cq, i, j, pc)):
+            while j < n:
+                turn = (af[j] - af[i]) - arm[i] * (th[j] - th[i])  # the turn times the arm's motion since
+                if not ((xy[j] - xy[i]) + r * (th[j] - th[i]) + turn + (arm[j] - arm[i]) < m
+                        or _geometries_clear(GW, cq, i, j, (xy[j] - xy[i]) + turn, th[j] - th[i], gc, gr)):
+                    break
+                if not (arm[j] - arm[i] < ms or _pairs_clear(W, cq, i, j, pc)):
+                    break
                 done[j] = True
                 j += 1
             hi = j
             j = i - 1
-            while j >= 0 and (xy[i] - xy[j]) + (r + arm[i]) * (th[i] - th[j]) - (ab[i] - ab[j]) \
-                    + (arm[i] - arm[j]) < m and (arm[i] - arm[j] < ms or _pairs_clear(W, cq, j, i, pc)):
+            while j >= 0:
+                turn = arm[i] * (th[i] - th[j]) - (ab[i] - ab[j])
+                if not ((xy[i] - xy[j]) + r * (th[i] - th[j]) + turn + (arm[i] - arm[j]) < m
+                        or _geometries_clear(GW, cq, j, i, (xy[i] - xy[j]) + turn, th[i] - th[j], gc, gr)):
+                    break
+                if not (arm[i] - arm[j] < ms or _pairs_clear(W, cq, j, i, pc)):
+                    break
                 done[j] = True
                 j -= 1
             span = hi - j - 1
@@ -215,6 +227,21 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
         if undecided.shape[0]:
             undecided[i] = True
     return UNKNOWN if unknown else FREE
+
+
+@nb.njit(cache=True, inline="always")
+def _geometries_clear(GW, cq, a, b, base, dth, gc, gr):
+    """Every robot geometry g stays clear of the environment from state a to state b (a < b):
+    the base's travel and the turn weighted by the arm's motion (base), plus its own radius
+    times the turn dth, plus its own arm motion bound sum_k GW[g, k] (the joints' travel from
+    a to b), is below its clearance gc[g]."""
+    for g in range(GW.shape[0]):
+        d = base + gr[g] * dth
+        for k in range(5):
+            d += GW[g, k] * (cq[b, k] - cq[a, k])
+        if d >= gc[g]:
+            return False
+    return True
 
 
 @nb.njit(cache=True, inline="always")

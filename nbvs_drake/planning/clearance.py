@@ -165,6 +165,9 @@ class FreeCertificate:
         self.s0 = _sphere_starts(self.s_geom, len(self.g_body))
         #: the arrays the numba kernels take, packed (`pack_model`; `unpack` in the kernels)
         self.model = pack_model({name: getattr(self, name) for name in MODEL_ARRAYS})
+        #: the length of a state's margins (`bulk._walk`): m_env, m_self, radius, the pairs'
+        #: clearances, the geometries' clearances and radii
+        self.margin_size = 3 + len(self.pairs) + 2 * len(self.g_body)
 
     def geometry_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WG (G, 4, 4) of the robot's collision geometries at the state q (8,)."""
@@ -492,61 +495,66 @@ def _classify_one(qn, model, scratch) -> int:
 
 
 @nb.njit(cache=True)
-def _reach(model):
-    """Motion bounds of the robot's collision geometry (6,): [R_base, R_1, ..., R_5], where
-    R_base bounds the distance of any point of any geometry from the base's origin (so from its
-    vertical axis) and R_k the distance from arm joint k's origin (the origin of the body it
-    turns; URDF child frames sit at the link origins) of any point of a geometry it moves, at any
-    state: the chain's link offsets summed, plus each geometry's centre offset and bounding
-    radius. Moving linearly in state space between two states moves no point of the robot more
-    than hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k|; `bulk._verdict_of_states` uses
-    the state's own radius (`_free_margin`) in place of R_base, and `_arm_motion_bound` the
-    sum over the joints."""
+def _geometry_reach(model):
+    """((G, 5), (G,)): for each robot geometry, how far joint k moves any point of it per
+    radian (0 for the joints after its body: joint k turns body k + 1 and the bodies after it),
+    and how far any point of it can be from the base's origin: the chain's link offsets (URDF
+    child frames sit at the link origins) plus the geometry's centre offset and bounding
+    radius."""
     X_PF, g_body, g_X, g_bound = model[0], model[2], model[3], model[7]
     link = np.empty(5)
     for i in range(5):
         link[i] = math.sqrt(X_PF[i, 0, 3] ** 2 + X_PF[i, 1, 3] ** 2 + X_PF[i, 2, 3] ** 2)
-    out = np.zeros(6)
-    for g in range(g_body.shape[0]):
+    G = g_body.shape[0]
+    GW, base = np.zeros((G, 5)), np.zeros(G)
+    for g in range(G):
         b = g_body[g]
         own = math.sqrt(g_X[g, 0, 3] ** 2 + g_X[g, 1, 3] ** 2 + g_X[g, 2, 3] ** 2) + g_bound[g]
-        r = own
+        base[g] = own
         for i in range(b):
-            r += link[i]
-        out[0] = max(out[0], r)
-        for k in range(b):  # joint k turns body k + 1 and the bodies after it
-            rk = own
+            base[g] += link[i]
+        for k in range(b):
+            GW[g, k] = own
             for i in range(k + 1, b):
-                rk += link[i]
-            out[1 + k] = max(out[1 + k], rk)
+                GW[g, k] += link[i]
+    return GW, base
+
+
+@nb.njit(cache=True)
+def _reach(model):
+    """Motion bounds of the robot's collision geometry (6,): [R_base, R_1, ..., R_5], where
+    R_base bounds the distance of any point of any geometry from the base's origin (so from its
+    vertical axis) and R_k the distance from arm joint k's origin (the origin of the body it
+    turns) of any point of a geometry it moves, at any state (`_geometry_reach`'s largest).
+    Moving linearly in state space between two states moves no point of the robot more than
+    hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k|; `bulk._walk` uses the state's own
+    radius (`_free_margin`) in place of R_base, and `_arm_motion_bound` the sum over the
+    joints."""
+    GW, base = _geometry_reach(model)
+    out = np.zeros(6)
+    for g in range(GW.shape[0]):
+        out[0] = max(out[0], base[g])
+        for k in range(5):
+            out[1 + k] = max(out[1 + k], GW[g, k])
     return out
 
 
 @nb.njit(cache=True)
 def _pair_reach(model):
     """(P, 5): for each robot pair (geometries a, c on bodies b_a <= b_c), how far joint k can
-    move a point of the pair's second geometry relative to the first per radian: the chain's
-    link offsets from joint k to body b_c plus the geometry's offset and bounding radius, for
-    the joints between the two bodies (b_a <= k < b_c; joint k turns body k + 1 and the
-    bodies after it), 0 for the others, which move both alike. sum_k W[j, k] |dq_k| bounds the
-    pair's relative motion along a straight line in state space, and is at most
-    `_arm_motion_bound`'s."""
-    X_PF, g_body, g_X, g_bound, pairs = model[0], model[2], model[3], model[7], model[19]
-    link = np.empty(5)
-    for i in range(5):
-        link[i] = math.sqrt(X_PF[i, 0, 3] ** 2 + X_PF[i, 1, 3] ** 2 + X_PF[i, 2, 3] ** 2)
+    move a point of the pair's second geometry relative to the first per radian
+    (`_geometry_reach` of c) for the joints between the two bodies (b_a <= k < b_c), 0 for the
+    others, which move both alike. sum_k W[j, k] |dq_k| bounds the pair's relative motion
+    along a straight line in state space, and is at most `_arm_motion_bound`'s."""
+    g_body, pairs = model[2], model[19]
+    GW = _geometry_reach(model)[0]
     W = np.zeros((pairs.shape[0], 5))
     for j in range(pairs.shape[0]):
         a, c = pairs[j, 0], pairs[j, 1]
         if g_body[a] > g_body[c]:
             a, c = c, a
-        lo, hi = g_body[a], g_body[c]
-        own = math.sqrt(g_X[c, 0, 3] ** 2 + g_X[c, 1, 3] ** 2 + g_X[c, 2, 3] ** 2) + g_bound[c]
-        for k in range(lo, hi):
-            rk = own
-            for i in range(k + 1, hi):
-                rk += link[i]
-            W[j, k] = rk
+        for k in range(g_body[a], g_body[c]):
+            W[j, k] = GW[c, k]
     return W
 
 
@@ -573,14 +581,18 @@ def _free_margin(qn, model, scratch):
     height (`FreeCertificate`), so a vertical gap to a box turned only about z never shrinks.
     radius: the largest horizontal distance of a point of the robot from the base's vertical
     axis at qn (a turn of the base by dtheta moves no point further than radius |dtheta|)."""
-    return _free_margins(qn, model, scratch, np.empty(model[19].shape[0]))
+    G = model[2].shape[0]
+    return _free_margins(qn, model, scratch, np.empty(model[19].shape[0]), np.empty(G), np.empty(G))
 
 
 @nb.njit(cache=True)
-def _free_margins(qn, model, scratch, pair_c):
-    """`_free_margin`, with each robot pair's own clearance in pair_c (P,) (filled where both
-    margins are > 0; m_self is their least): pair j stays clear while the motion of its second
-    geometry relative to its first stays below pair_c[j] (`_pair_reach`)."""
+def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
+    """`_free_margin`, with each robot pair's own clearance in pair_c (P,), each geometry's
+    clearance to the environment in geo_c (G,) and its radius (the largest horizontal distance
+    of a point of it from the base's axis) in geo_r (G,) (filled where both margins are > 0;
+    m_env and m_self are their least, radius their largest): pair j stays clear while the
+    motion of its second geometry relative to its first stays below pair_c[j] (`_pair_reach`),
+    geometry g while its own motion stays below geo_c[g] (`_geometry_reach`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
     G, M, P = g_body.shape[0], e_p.shape[0], pairs.shape[0]
@@ -589,6 +601,7 @@ def _free_margins(qn, model, scratch, pair_c):
     best = np.inf
     for g in range(G):
         pad = g_pad[g]
+        geo_c[g] = np.inf
         if pad == -np.inf:
             continue
         for m in range(M):
@@ -608,10 +621,10 @@ def _free_margins(qn, model, scratch, pair_c):
                 if math.sqrt(gxy * gxy + gz * gz) <= thr:
                     return -1.0, -1.0, 0.0
                 c = gxy - math.sqrt(thr * thr - gz * gz) if thr > 0.0 else gxy
-                best = min(best, c)
+                geo_c[g] = min(geo_c[g], c)
                 continue
             c = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g] - pad - EPS
-            if c >= best:
+            if c >= geo_c[g]:
                 continue
             if c <= 0.0:  # classify's finer tests
                 c = np.inf
@@ -619,7 +632,8 @@ def _free_margins(qn, model, scratch, pair_c):
                     c = min(c, _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) - s_rho[k] - pad - EPS)
                 if c <= 0.0:
                     return c, c, 0.0
-            best = min(best, c)
+            geo_c[g] = min(geo_c[g], c)
+        best = min(best, geo_c[g])
     if best <= 0.0:
         return best, best, 0.0
     own = np.inf
@@ -652,7 +666,8 @@ def _free_margins(qn, model, scratch, pair_c):
         own = min(own, c)
     radius = 0.0
     for g in range(G):
-        radius = max(radius, math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_bound[g])
+        geo_r[g] = math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_bound[g]
+        radius = max(radius, geo_r[g])
     return best, own, radius
 
 

@@ -51,7 +51,7 @@ class ORTPlanner:
         bulk_growth = self.motion.bulk_checks and obstacles.collision.certificate is not None
         grid = bulk.TreeGrid(self.sc.robot.xy_bounds, tree.q.shape[0]) if bulk_growth else None
         # each vertex's clearance margins (bulk._walk), where its edge's check computed them
-        margins = np.full((tree.q.shape[0], 3 + len(obstacles.collision.certificate.pairs)), -1.0) \
+        margins = np.full((tree.q.shape[0], obstacles.collision.certificate.margin_size), -1.0) \
             if bulk_growth else None
         while tree.n < p.ort_vertices + 1 and it < budget:
             b = min(p.ort_batch, budget - it)

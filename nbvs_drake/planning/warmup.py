@@ -34,7 +34,7 @@ def warm_kernels() -> float:
     bulk.rollout_verdicts(np.ascontiguousarray(q[None]), q, c, r, *cert.model, cm.counter)
     grid = bulk.TreeGrid(sc.robot.xy_bounds, len(q))
     grid.insert(q, 1)
-    bulk.tree_extensions(q, np.full((len(q), 3 + len(cert.pairs)), -1.0), q[1:], w, 1.0, rc, kin.arm_lower, kin.arm_upper,
+    bulk.tree_extensions(q, np.full((len(q), cert.margin_size), -1.0), q[1:], w, 1.0, rc, kin.arm_lower, kin.arm_upper,
                          *cert.model, 0.04, cm.counter, *grid.arrays, 1)
     return time.perf_counter() - t
 

@@ -496,7 +496,7 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
             und = np.zeros(len(allq), bool)
             cnt = np.zeros(1, np.int64)
             end = np.empty(n_m)
-            v = bulk._walk(allq, m, scratch, stride, cnt, und, s0, end)
+            v = bulk._walk(allq, m, scratch, stride, cnt, und, s0, end, bulk._bounds(m))
             out[(stride, s0[0] > 0)] = (v, np.flatnonzero(und).tolist())
             if end[0] > 0:
                 np.testing.assert_allclose(end, np.concatenate([_free_margins(allq[-1], m, scratch, pc, gc, gr), pc, gc,

@@ -92,7 +92,7 @@ def interpolate(states, max_step):
 
 
 @nb.njit(cache=True)
-def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
+def _verdict_of_states(allq, model, scratch, stride, counter, undecided, bounds):
     """The verdict of a sequence of states (see the module docstring); counter[0] += states
     classified. A state proved FREE with a margin (`clearance._free_margin`) also proves FREE
     every state of the sequence that no point of the robot can reach from it by moving less than
@@ -100,9 +100,16 @@ def _verdict_of_states(allq, model, scratch, stride, counter, undecided):
     and the verdict is the one of visiting every state. `undecided` (bool (n,), or empty: not
     wanted): set True at the states found UNKNOWN (all of them when the verdict is UNKNOWN
     and the first state is FREE). stride > 0: the first state, the last, every stride-th, then
-    the rest; stride 0: `_walk`'s leapfrog order."""
+    the rest; stride 0: `_walk`'s leapfrog order. bounds: `_bounds(model)`."""
     none = np.full(3 + model[19].shape[0] + 2 * model[2].shape[0], -1.0)
-    return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(none.shape[0]))
+    return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(none.shape[0]), bounds)
+
+
+@nb.njit(cache=True)
+def _bounds(model):
+    """The motion bounds `_walk` takes: (clearance._reach, _pair_reach, _geometry_reach's
+    per-joint reach), computed once per model."""
+    return _reach(model), _pair_reach(model), _geometry_reach(model)[0]
 
 
 #: the leapfrog walk (stride 0) probes this share of the last proved state's span ahead of the
@@ -111,7 +118,7 @@ LEAP = 0.4
 
 
 @nb.njit(cache=True)
-def _walk(allq, model, scratch, stride, counter, undecided, start, end):
+def _walk(allq, model, scratch, stride, counter, undecided, start, end, bounds):
     """`_verdict_of_states` with the margins of the first state given (start (3 + P + 2G,):
     m_env, m_self, radius, the P robot pairs' clearances, the G geometries' clearances and
     radii, `clearance._free_margins`; not visited when m_env and m_self are > 0) and the last
@@ -125,11 +132,9 @@ def _walk(allq, model, scratch, stride, counter, undecided, start, end):
     so the verdict and the undecided states are the same in every order. stride 0 (leapfrog):
     after the first and the last state, the state LEAP x (the span the last visited state
     proved) beyond the first state not yet proved, or that state itself when the last visit
-    proved nothing."""
+    proved nothing. bounds: `_bounds(model)`."""
     n = allq.shape[0]
-    reach = _reach(model)
-    W = _pair_reach(model)
-    GW = _geometry_reach(model)[0]
+    reach, W, GW = bounds
     P, G = W.shape[0], GW.shape[0]
     end[0] = -1.0
     end[1] = -1.0
@@ -264,7 +269,7 @@ def path_undecided(states, F, I, H, max_step, stride, counter):
     model = unpack(F, I, H)
     allq = interpolate(states, max_step)
     undecided = np.zeros(allq.shape[0], np.bool_)
-    v = _verdict_of_states(allq, model, _scratch(model), stride, counter, undecided)
+    v = _verdict_of_states(allq, model, _scratch(model), stride, counter, undecided, _bounds(model))
     return v, allq, np.flatnonzero(undecided)
 
 
@@ -273,7 +278,7 @@ def path_verdict(states, F, I, H, max_step, stride, counter):
     """FREE / COLLIDING / UNKNOWN of a path's states (m+1, 8), interpolated at max_step."""
     model = unpack(F, I, H)
     return _verdict_of_states(interpolate(states, max_step), model, _scratch(model), stride, counter,
-                              np.zeros(0, np.bool_))
+                              np.zeros(0, np.bool_), _bounds(model))
 
 
 @nb.njit(cache=True)
@@ -370,10 +375,11 @@ def edge_verdicts(A, B, F, I, H, rc, max_step, stride, counter):
     out = np.empty(A.shape[0], np.int8)
     scratch = _scratch(model)
     none = np.zeros(0, np.bool_)
+    bounds = _bounds(model)
     for i in range(A.shape[0]):
         c = steer_together(A[i], B[i], rc[0], rc[1], rc[2], rc[3])
         out[i] = _verdict_of_states(interpolate(rollout(A[i], c, rc[0]), max_step), model, scratch, stride,
-                                    counter, none)
+                                    counter, none, bounds)
     return out
 
 
@@ -637,6 +643,7 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
     counts = np.zeros(B, np.int64)
     end = np.full((B, margins.shape[1]), -1.0)
     model = unpack(F, I, H)
+    bounds = _bounds(model)
     n_chunks = max(1, min(n_chunks, B))
     for c in nb.prange(n_chunks):
         scratch = _scratch(model)
@@ -652,7 +659,7 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
                 verdict[b] = COLLIDING
                 continue
             verdict[b] = _walk(interpolate(states, max_step), model, scratch, 0, counts[b:b + 1], none,
-                               margins[i], end[b])
+                               margins[i], end[b], bounds)
     counter[0] += counts.sum()
     # the undecided states of the UNKNOWN edges (the same walk, with the states marked)
     first = np.zeros(B, np.bool_)
@@ -666,7 +673,8 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
         allq = interpolate(_extension_states(Q, near[b], targets[b], w, step, rc, arm_lo, arm_hi, b, near, aim,
                                              length), max_step)
         und = np.zeros(allq.shape[0], np.bool_)
-        _walk(allq, model, scratch, 0, counts[b:b + 1], und, margins[near[b]], np.empty(margins.shape[1]))
+        _walk(allq, model, scratch, 0, counts[b:b + 1], und, margins[near[b]], np.empty(margins.shape[1]),
+              bounds)
         idx = np.flatnonzero(und)
         first[b] = idx.shape[0] == 0
         parts.append(allq[idx])

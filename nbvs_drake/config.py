@@ -318,13 +318,6 @@ class MissionConfig:
     #: partial overlap biases the pose by 3-10 mm at fitness ~1.0 (dragon EU-MU seed 1: a frame
     #: 1.0 cm off, every later scan 0.8-0.9 cm off), beyond the 3 mm coverage threshold
     fine_registration: bool = False
-    #: with verify_views: a localisation frame joins the registration model only when its
-    #: registration's fitness reaches this (0: every registered frame does). A frame of little
-    #: overlap (much new surface) registers with a bias, and merged it moves every later
-    #: registration (dragon EU-MU seed 1: a re-localisation frame of fitness 0.51 at
-    #: fine_registration's 8 mm, 4.7 mm off; every later scan 3-4.5 mm off); the sensing scan
-    #: after it, registered again, still brings its surface
-    frame_min_fitness: float = 0.0
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0
@@ -543,8 +536,6 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.n_candidates > 0, f"planner.n_candidates must be > 0, got {p.n_candidates}")
     _require(_finite(p.overlap_h) and 0 <= p.overlap_h <= 1,
              f"planner.overlap_h (h) must be in [0, 1], got {p.overlap_h}")
-    _require(_finite(sc.mission.frame_min_fitness) and 0 <= sc.mission.frame_min_fitness <= 1,
-             f"mission.frame_min_fitness must be in [0, 1], got {sc.mission.frame_min_fitness}")
     cap = sc.mission.registration_residual_cap
     _require(cap == -1 or 0 <= cap <= 0.02,
              f"mission.registration_residual_cap must be -1 (auto) or in [0, 0.02] m, got {cap}")

@@ -93,8 +93,7 @@ class Localisation(LeafSystem):
     the corrected camera is within the tolerances of the plan's target view; otherwise the
     belief is corrected (or keeps its spread), `Belief.check` asks the planner for a
     correction or a re-localisation view, and the frame is neither integrated nor counted (its
-    report goes with the next sensing scan's, `frames`; a registered frame joins the
-    registration model when its fitness reaches mission.frame_min_fitness). A plan with purpose "correct" (the
+    report goes with the next sensing scan's, `frames`). A plan with purpose "correct" (the
     arm alone, exact) ends in the sensing scan, and so does the frame after
     mission.max_recoveries localisation frames (with mission.leg_turns, per leg).
 
@@ -193,7 +192,7 @@ class Localisation(LeafSystem):
                                      _recoveries(mem.frames, self.sc.mission.leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
-        if integrate and (not check or icp.applied and icp.fitness >= self.sc.mission.frame_min_fitness):
+        if integrate and (not check or icp.applied):
             model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),

@@ -304,7 +304,7 @@ def test_cluttered_room_mission_with_the_roadmap(tmp_path):
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
 def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
-    """clearance._free_margin: a state with margins (m, m_self) > 0 is FREE by the certificate,
+    """clearance._free_margins: a state with margins (m, m_self) > 0 is FREE by the certificate,
     and so is every state whose points moved less than m (the motion bound, with the base's turn
     weighted by the state's radius) and less than m_self relative to each other; near-contact
     states included."""

@@ -94,7 +94,7 @@ def interpolate(states, max_step):
 @nb.njit(cache=True)
 def _verdict_of_states(allq, model, scratch, stride, counter, undecided, bounds):
     """The verdict of a sequence of states (see the module docstring); counter[0] += states
-    classified. A state proved FREE with a margin (`clearance._free_margin`) also proves FREE
+    classified. A state proved FREE with a margin (`clearance._free_margins`) also proves FREE
     every state of the sequence that no point of the robot can reach from it by moving less than
     the margin (a bound of the motion summed along the sequence): those are not visited,
     and the verdict is the one of visiting every state. `undecided` (bool (n,), or empty: not

@@ -134,7 +134,7 @@ class FreeCertificate:
         R = np.stack([self.geometry_poses(q)[:, :3, 2] for q in qs])  # (16, G, 3) axes
         self.g_vert = np.array(g_cyl, bool) & np.all(np.abs(R[:, :, 2]) > 1 - 1e-12, axis=0)
         # ... and keep their height: a chain of turns that keeps an axis vertical turns about
-        # vertical axes only (`_free_margin` relies on it: planar motion leaves their vertical gaps)
+        # vertical axes only (`_free_margins` relies on it: planar motion leaves their vertical gaps)
         z = np.stack([self.geometry_poses(q)[:, 2, 3] for q in qs])
         self.g_vert &= np.ptp(z, axis=0) < 1e-12
         world = plant.world_body()
@@ -528,7 +528,7 @@ def _reach(model):
     turns) of any point of a geometry it moves, at any state (`_geometry_reach`'s largest).
     Moving linearly in state space between two states moves no point of the robot more than
     hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k|; `bulk._walk` uses the state's own
-    radius (`_free_margin`) in place of R_base, and `_arm_motion_bound` the sum over the
+    radius (`_free_margins`) in place of R_base, and `_arm_motion_bound` the sum over the
     joints."""
     GW, base = _geometry_reach(model)
     out = np.zeros(6)
@@ -570,27 +570,20 @@ def _arm_motion_bound(a, b, reach):
 
 
 @nb.njit(cache=True)
-def _free_margin(qn, model, scratch):
+def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
     """(m_env, m_self, radius): how far, at least, every point of the robot could move at the
     state qn (8,), and every point relative to every other (`_arm_motion_bound`), with
     the state still FREE by `_classify_one`'s tests, the same tests with the same thresholds:
     the least clearance beyond its padding (and EPS) of every robot geometry to every
     environment box, and of every robot pair Drake checks. Both > 0 prove the state FREE;
-    otherwise it says nothing (ask `_classify_one`). Bounding spheres first: a pair's finer
-    test runs only when its bound is not positive. The vertical cylinders keep their
-    height (`FreeCertificate`), so a vertical gap to a box turned only about z never shrinks.
+    otherwise it says nothing (ask `_classify_one`). Bounding spheres first: a finer test
+    runs only when a bound is not positive. The vertical cylinders keep their height
+    (`FreeCertificate`), so a vertical gap to a box turned only about z never shrinks.
     radius: the largest horizontal distance of a point of the robot from the base's vertical
-    axis at qn (a turn of the base by dtheta moves no point further than radius |dtheta|)."""
-    G = model[2].shape[0]
-    return _free_margins(qn, model, scratch, np.empty(model[19].shape[0]), np.empty(G), np.empty(G))
-
-
-@nb.njit(cache=True)
-def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
-    """`_free_margin`, with each robot pair's own clearance in pair_c (P,), each geometry's
-    clearance to the environment in geo_c (G,) and its radius (the largest horizontal distance
-    of a point of it from the base's axis) in geo_r (G,) (filled where both margins are > 0;
-    m_env and m_self are their least, radius their largest): pair j stays clear while the
+    axis at qn (a turn of the base by dtheta moves no point further than radius |dtheta|).
+    Where both margins are > 0 it also fills each robot pair's own clearance in pair_c (P,),
+    each geometry's clearance to the environment in geo_c (G,) and its radius in geo_r (G,)
+    (m_env and m_self are their least, radius their largest): pair j stays clear while the
     motion of its second geometry relative to its first stays below pair_c[j] (`_pair_reach`),
     geometry g while its own motion stays below geo_c[g] (`_geometry_reach`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,

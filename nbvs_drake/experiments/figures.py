@@ -153,26 +153,37 @@ def draw_versus(r, table, fig_spec, path: Path):
 
 
 def draw_bars(r, table, fig_spec, path: Path):
+    """One bar per cell (the mean, the runs as dots, the paper's value as a red line); with
+    `panels: FACTOR`, one row of bars per level of that factor, its cells labelled without
+    it."""
     name = fig_spec["metric"]
     spec = _spec(r, name)
-    fig, ax = plt.subplots(figsize=(max(4.0, 1.1 * len(table["cells"]) + 2), 4.0), dpi=110)
-    for i, c in enumerate(table["cells"]):
-        st = _metrics_of(table, i).get(name) or {}
-        pubs = dict(table["timings"]["cells"][i].get("published") or {}, **(c.get("published") or {}))
-        if st.get("mean") is not None:
-            ax.bar(i, st["mean"], 0.6, color="C0", alpha=0.7)
-        vals = list((st.get("values") or {}).values())
-        ax.plot([i] * len(vals), vals, "k.", ms=5)
-        pub = pubs.get(f"{name}.mean", pubs.get(name))
-        if pub is not None:
-            ax.plot([i - 0.3, i + 0.3], [pub, pub], "r-", lw=2, label="paper")
-    ax.set_xticks(range(len(table["cells"])), [c["label"] for c in table["cells"]], rotation=20, fontsize=8)
-    ax.set_ylabel(fig_spec.get("ylabel") or _axis_label(spec, name))
-    ax.grid(alpha=0.3, axis="y")
-    h, lab = ax.get_legend_handles_labels()
-    if h:
-        ax.legend(h[:1], lab[:1], fontsize=8)
-    ax.set_title(fig_spec.get("title", ""))
+    panel_f = fig_spec.get("panels")
+    cells = table["cells"]
+    panels = list(dict.fromkeys(c["levels"].get(panel_f, "") for c in cells)) if panel_f else [""]
+    rows = [[i for i, c in enumerate(cells) if not panel_f or c["levels"].get(panel_f, "") == pv] for pv in panels]
+    width = max(len(row) for row in rows)
+    fig, axes = plt.subplots(len(panels), 1, figsize=(max(4.0, 1.1 * width + 2), 4.0 * len(panels)), dpi=110,
+                             squeeze=False)
+    for ax, pv, row in zip(axes[:, 0], panels, rows):
+        for x, i in enumerate(row):
+            st = _metrics_of(table, i).get(name) or {}
+            pubs = dict(table["timings"]["cells"][i].get("published") or {}, **(cells[i].get("published") or {}))
+            if st.get("mean") is not None:
+                ax.bar(x, st["mean"], 0.6, color="C0", alpha=0.7)
+            vals = list((st.get("values") or {}).values())
+            ax.plot([x] * len(vals), vals, "k.", ms=5)
+            pub = pubs.get(f"{name}.mean", pubs.get(name))
+            if pub is not None:
+                ax.plot([x - 0.3, x + 0.3], [pub, pub], "r-", lw=2, label="paper")
+        labels = [_curve_label(cells[i]["levels"], panel_f) if panel_f else cells[i]["label"] for i in row]
+        ax.set_xticks(range(len(row)), labels, rotation=20, fontsize=8)
+        ax.set_ylabel(fig_spec.get("ylabel") or _axis_label(spec, name))
+        ax.grid(alpha=0.3, axis="y")
+        h, lab = ax.get_legend_handles_labels()
+        if h:
+            ax.legend(h[:1], lab[:1], fontsize=8)
+        ax.set_title(f"{fig_spec.get('title', '')}: {pv}" if panel_f else fig_spec.get("title", ""))
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

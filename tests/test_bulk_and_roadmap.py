@@ -475,9 +475,7 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
         if len(c) == 0:
             continue
         allq = bulk.interpolate(rollout(x, c, sc.robot.control_dt), 0.04)
-        P, G = len(model.certificate.pairs), len(model.certificate.g_body)
-        pc, gc, gr = np.empty(P), np.empty(G), np.empty(G)
-        start = np.concatenate([_free_margins(allq[0], m, scratch, pc, gc, gr), pc, gc, gr])
+        start, last = _margins(allq[[0, -1]], *model.certificate.model)[0]
         n_m = model.certificate.margin_size
         out = {}
         for stride, s0 in ((8, np.full(n_m, -1.0)), (0, np.full(n_m, -1.0)), (0, start)):
@@ -487,8 +485,7 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
             v = bulk._walk(allq, m, scratch, stride, cnt, und, s0, end, bulk._bounds(m))
             out[(stride, s0[0] > 0)] = (v, np.flatnonzero(und).tolist())
             if end[0] > 0:
-                np.testing.assert_allclose(end, np.concatenate([_free_margins(allq[-1], m, scratch, pc, gc, gr), pc, gc,
-                                                                gr]))
+                np.testing.assert_allclose(end, last)
         ref = out[(8, False)]
         assert all(o[0] == ref[0] for o in out.values())
         if ref[0] == UNKNOWN:  # (a COLLIDING walk stops at the first collision it visits)

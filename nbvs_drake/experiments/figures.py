@@ -49,11 +49,16 @@ def _curve_label(levels: dict, skip: str | None) -> str:
     return "/".join(one(k, v) for k, v in levels.items() if k != skip) or "all"
 
 
+def _panels(table: dict, panel_f: str | None) -> list[str]:
+    """The levels of the factor `panel_f` in the table's cells, in order ([""]: no panels)."""
+    return list(dict.fromkeys(c["levels"].get(panel_f, "") for c in table["cells"])) if panel_f else [""]
+
+
 def draw_series(r, table, fig_spec, path: Path):
     name = fig_spec["series"]
     spec = _spec(r, name)
     panel_f = fig_spec.get("panels")
-    panels = list(dict.fromkeys(c["levels"].get(panel_f, "") for c in table["cells"])) if panel_f else [""]
+    panels = _panels(table, panel_f)
     fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.0), dpi=110, squeeze=False)
     for ax, pv in zip(axes[0], panels):
         for i, c in enumerate(table["cells"]):
@@ -160,7 +165,7 @@ def draw_bars(r, table, fig_spec, path: Path):
     spec = _spec(r, name)
     panel_f = fig_spec.get("panels")
     cells = table["cells"]
-    panels = list(dict.fromkeys(c["levels"].get(panel_f, "") for c in cells)) if panel_f else [""]
+    panels = _panels(table, panel_f)
     rows = [[i for i, c in enumerate(cells) if not panel_f or c["levels"].get(panel_f, "") == pv] for pv in panels]
     width = max(len(row) for row in rows)
     fig, axes = plt.subplots(len(panels), 1, figsize=(max(4.0, 1.1 * width + 2), 4.0 * len(panels)), dpi=110,

@@ -42,6 +42,7 @@ from .clearance import (
     _scratch,
     _vertical_cylinder_box,
     _vertical_cylinder_box_overlap,
+    margin_size,
     unpack,
 )
 from .rrt import _sq_within
@@ -101,7 +102,7 @@ def _verdict_of_states(allq, model, scratch, stride, counter, undecided, bounds)
     wanted): set True at the states found UNKNOWN (all of them when the verdict is UNKNOWN
     and the first state is FREE). stride > 0: the first state, the last, every stride-th, then
     the rest; stride 0: `_walk`'s leapfrog order. bounds: `_bounds(model)`."""
-    none = np.full(3 + model[19].shape[0] + 2 * model[2].shape[0], -1.0)
+    none = np.full(margin_size(model), -1.0)
     return _walk(allq, model, scratch, stride, counter, undecided, none, np.empty(none.shape[0]), bounds)
 
 
@@ -630,10 +631,10 @@ def tree_extensions(Q, margins, targets, w, step, rc, arm_lo, arm_hi, F, I, H, m
     ask about the whole edge), and the interpolated states of edge b that the model cannot
     decide, states[offsets[b]:offsets[b + 1]] (the edge is free iff Drake finds them all
     free); those few edges are walked again, in order, to collect them. The edges are walked
-    in `_walk`'s leapfrog order from their vertex's margins (margins (capacity, 3 + P), the
-    rows of Q so far: m_env, m_self, radius and the robot pairs' clearances, m_env -1 where
-    not known), and end (B, 3 + P) returns the margins of each edge's last state (the vertex
-    it adds) where the walk computed them."""
+    in `_walk`'s leapfrog order from their vertex's margins (margins (capacity,
+    `clearance.margin_size`), the rows of Q so far; m_env -1 where not known), and end (B,
+    margin_size) returns the margins of each edge's last state (the vertex it adds) where the
+    walk computed them."""
     B = targets.shape[0]
     near = np.empty(B, np.int64)
     length = np.zeros(B)

@@ -160,14 +160,14 @@ def _looks_at_one(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offs
 
 
 @nb.njit(cache=True, inline="always")
-def _misses_in_plane(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, dx, dy, hx_, hy_, hx, hy):
+def _misses_in_plane(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset, dx, dy, ux, uy, hx, hy):
     """The second pretest of `_looks_at_one` (only for the planar arm `_arm_plane_offset`
     accepts): True when the optical axis surely misses W_box within the range. In the arm's
-    vertical plane, in coordinates (r along the heading (hx_, hy_) from the first joint's axis,
+    vertical plane, in coordinates (r along the heading (ux, uy) from the first joint's axis,
     z up), the joint origins and the link's elevation follow from the pitch joints alone; the
     optical axis runs along the last link, from a point within plane_offset of the one computed
     (the camera's offset turns with the roll). The ray's (r, z) must meet the box's projection,
-    [the box centre's r (dx, dy from the axis) -+ its half extents along the heading] x
+    [the box centre's r (dx, dy from the axis) -+ its half extents (hx, hy) along the heading] x
     [bmin_z, bmax_z], grown by plane_offset and 1e-6 (rounding against the full kinematics),
     within [t_near, t_far] (widened by 1e-6): if it does not, neither does the ray in 3D, whose
     (r, z) stay inside that projection wherever it is inside the box. NaN slabs: no verdict."""
@@ -182,8 +182,8 @@ def _misses_in_plane(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_o
     z += X_L5C[0, 3] * sp
     dr, dz = X_L5C[0, 2] * cp, X_L5C[0, 2] * sp  # the optical axis: +-x of the last link
     grow = plane_offset + 1e-6
-    cr = dx * hx_ + dy * hy_
-    er = abs(hx_) * hx + abs(hy_) * hy + grow
+    cr = dx * ux + dy * uy
+    er = abs(ux) * hx + abs(uy) * hy + grow
     t0, t1 = -np.inf, np.inf
     for o, d, lo, hi in ((r, dr, cr - er, cr + er), (z, dz, bmin[2] - grow, bmax[2] + grow)):
         inv = 1.0 / d if d != 0.0 else math.copysign(np.inf, d)

@@ -165,9 +165,8 @@ class FreeCertificate:
         self.s0 = _sphere_starts(self.s_geom, len(self.g_body))
         #: the arrays the numba kernels take, packed (`pack_model`; `unpack` in the kernels)
         self.model = pack_model({name: getattr(self, name) for name in MODEL_ARRAYS})
-        #: the length of a state's margins (`bulk._walk`): m_env, m_self, radius, the pairs'
-        #: clearances, the geometries' clearances and radii
-        self.margin_size = 3 + len(self.pairs) + 2 * len(self.g_body)
+        #: the length of a state's margins (`margin_size`)
+        self.margin_size = margin_size(unpack(*self.model))
 
     def geometry_poses(self, q: np.ndarray) -> np.ndarray:
         """X_WG (G, 4, 4) of the robot's collision geometries at the state q (8,)."""
@@ -567,6 +566,14 @@ def _arm_motion_bound(a, b, reach):
     for k in range(5):
         m += reach[1 + k] * abs(b[3 + k] - a[3 + k])
     return m
+
+
+@nb.njit(cache=True)
+def margin_size(model) -> int:
+    """The length of a state's margins as `bulk._walk` keeps them: m_env, m_self, radius
+    (`_free_margins`), then the P pairs' clearances, the G geometries' clearances and their
+    radii."""
+    return 3 + model[19].shape[0] + 2 * model[2].shape[0]
 
 
 @nb.njit(cache=True)

@@ -8,7 +8,11 @@ systems diagram.
 
 The models and built-in scenarios are package data: see `nbvs_drake.resources`."""
 
-from .api import RunResult, reconstruct
+from .kernel_cache import drop_stale
+
+drop_stale()  # before any kernel loads from numba's cache (kernel_cache.py says why)
+
+from .api import RunResult, reconstruct  # noqa: E402
 
 __version__ = "0.1.0"
 

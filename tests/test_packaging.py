@@ -261,3 +261,30 @@ print(json.dumps({{"summary": r.summary, "paths": sorted(r.paths), "records": le
     # the same numbers as the same run from the repository
     here = reconstruct(_tiny(), out=v["cwd"].parent / "here")
     assert _strip(got["summary"]) == _strip(here.summary)
+
+
+def test_a_changed_kernel_source_drops_the_cached_kernels(tmp_path):
+    """numba keys a cached kernel on its own file only; kernel_cache.drop_stale removes every
+    cached kernel when any kernel module changed (a caller in one module inlines a callee in
+    another), and keeps them while the kernel modules stand."""
+    from nbvs_drake.kernel_cache import drop_stale
+    root = tmp_path / "pkg"
+    cache = root / "sub" / "__pycache__"
+    cache.mkdir(parents=True)
+    kernel, plain = root / "sub" / "k.py", root / "plain.py"
+    kernel.write_text("@nb.njit(cache=True)\ndef f():\n    return 1\n")
+    plain.write_text("x = 1\n")
+    cached = [cache / "k.f-2.py311.nbi", cache / "k.f-2.py311.1.nbc"]
+
+    def fill():
+        for f in cached:
+            f.write_text("")
+
+    fill()
+    assert drop_stale(root) and not any(f.exists() for f in cached)  # no stamp yet
+    fill()
+    assert not drop_stale(root) and all(f.exists() for f in cached)  # the same sources
+    plain.write_text("x = 22\n")
+    assert not drop_stale(root) and all(f.exists() for f in cached)  # not a kernel module
+    kernel.write_text("@nb.njit(cache=True)\ndef f():\n    return 22\n")
+    assert drop_stale(root) and not any(f.exists() for f in cached)

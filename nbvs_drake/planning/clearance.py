@@ -6,8 +6,9 @@ decide.
 The verdicts are Drake's: a state is reported free without Drake only when every pair that
 Drake would check is separated by more than its padding plus `EPS` in the conservative model,
 where Drake would find it free too; it is reported in collision only when a ball inside a robot
-cylinder reaches more than `EPS` into an environment Box that Drake checks it against; every
-other state goes to Drake. The model of the free test:
+cylinder reaches more than `EPS` into an environment Box that Drake checks it against, or into
+another robot geometry of a pair Drake checks (a ball inside it, or its exact vertical
+cylinder); every other state goes to Drake. The model of the free test:
 
 - each robot collision cylinder whose axis stays vertical for every state (the PatrolBot's body
   and pedestal, the Katana's first link) is kept exact, and is tested exactly against an
@@ -179,8 +180,9 @@ class FreeCertificate:
 
     def classify(self, q: np.ndarray) -> np.ndarray:
         """int8 (N,) for states (N, 8): FREE (proved collision free), COLLIDING (a ball inside a
-        robot geometry reaches into an environment box that Drake checks it against, deeper
-        than EPS) or UNKNOWN (ask Drake)."""
+        robot geometry reaches into an environment box that Drake checks it against, or into
+        the other geometry of a robot pair Drake checks, deeper than EPS: `_pair_overlaps`) or
+        UNKNOWN (ask Drake)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
         out = np.full(len(q), UNKNOWN, np.int8)
         _certify(q, *self.model, out)
@@ -430,6 +432,39 @@ def _pose_robot(qn, model, scratch):
             sw[k, i] = XG[g, i, 0] * s_c[k, 0] + XG[g, i, 1] * s_c[k, 1] + XG[g, i, 2] * s_c[k, 2] + XG[g, i, 3]
 
 
+@nb.njit(cache=True, inline="always")
+def _pair_overlaps(gp, sw, g_vert, g_r, g_h, g_bound, s0, s_in, pairs, pair_pad):
+    """Whether some robot pair that Drake checks (padding >= 0) is proved in collision at the
+    posed state (`_pose_robot`'s gp, sw): two vertical cylinders that still overlap when each is
+    shrunk by EPS, or a ball inside one geometry (s_in about a sphere centre) that reaches more
+    than EPS into the other (into the exact vertical cylinder, or into a ball inside it)."""
+    for j in range(pairs.shape[0]):
+        if not pair_pad[j] >= 0.0:
+            continue
+        a, c = pairs[j, 0], pairs[j, 1]
+        dxy = math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2)
+        dz = abs(gp[a, 2] - gp[c, 2])
+        if math.sqrt(dxy * dxy + dz * dz) >= g_bound[a] + g_bound[c]:
+            continue  # their bounding balls are apart
+        if g_vert[a] and g_vert[c]:
+            if dxy < g_r[a] + g_r[c] - 2 * EPS and dz < g_h[a] + g_h[c] - 2 * EPS:
+                return True
+            continue
+        if g_vert[c]:  # the vertical one as `a`
+            a, c = c, a
+        for k in range(s0[c], s0[c + 1]):
+            if g_vert[a]:
+                if _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2], g_r[a],
+                                            g_h[a]) < s_in[k] - EPS:
+                    return True
+                continue
+            for k2 in range(s0[a], s0[a + 1]):
+                if math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
+                             + (sw[k, 2] - sw[k2, 2]) ** 2) < s_in[k] + s_in[k2] - EPS:
+                    return True
+    return False
+
+
 @nb.njit(cache=True)
 def _classify_one(qn, model, scratch) -> int:
     """FREE, COLLIDING or UNKNOWN for one state qn (8,) (see `FreeCertificate.classify`)."""
@@ -451,6 +486,8 @@ def _classify_one(qn, model, scratch) -> int:
             for k in range(s0[g], s0[g + 1]):
                 if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) < s_in[k] - EPS:
                     return COLLIDING
+    if _pair_overlaps(gp, sw, g_vert, g_r, g_h, g_bound, s0, s_in, pairs, pair_pad):
+        return COLLIDING
     for g in range(G):
         pad = g_pad[g]
         if pad == -np.inf:

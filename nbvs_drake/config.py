@@ -226,6 +226,13 @@ class PlannerConfig:
     #: the current base by the arm alone (exact motion under Table 4's noise) before the run
     #: stops with no_feasible_under_noise (planning/recovery.py)
     noise_fallback: bool = False
+    #: the spread (m, m, rad standard deviations in x, y, heading) of a registered belief
+    #: that the rollouts of verified views start from (each leg after a localisation frame,
+    #: and the recovery paths): the registration's own accuracy. The default,
+    #: motion.REGISTERED_SIGMA, is what the open scene's registrations measured (corrected
+    #: errors up to ~2 cm); in the cluttered room, with the chairs and the table in the
+    #: registration model, they measured 0.5 mm / 0.5 mrad RMS (the `nbvs_reach` cells)
+    eu_registered_sigma: list[float] = dc.field(default_factory=lambda: [0.01, 0.01, 0.01])
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or
@@ -548,6 +555,8 @@ def validate(sc: Scenario) -> Scenario:
              f"planner.eu_max_collision_rate must be in [0, 1), got {p.eu_max_collision_rate}")
     _require(0 < p.eu_alpha < 1 and 0 < p.eu_gamma < 0.99,
              f"planner.eu_alpha and eu_gamma must be in (0, 1), got {p.eu_alpha}, {p.eu_gamma}")
+    _require(len(p.eu_registered_sigma) == 3 and all(_finite(v) and v >= 0 for v in p.eu_registered_sigma),
+             f"planner.eu_registered_sigma must be 3 numbers >= 0 (m, m, rad), got {p.eu_registered_sigma}")
     _require(len(p.weights) == 8 and all(w >= 0 for w in p.weights),
              f"planner.weights must be 8 numbers >= 0, got {p.weights}")
     _require(p.ray_stride >= 1, f"planner.ray_stride must be >= 1, got {p.ray_stride}")

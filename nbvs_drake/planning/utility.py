@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import REGISTERED_SIGMA, plan_legs, plans_in_legs
+from ..motion import plan_legs, plans_in_legs
 from . import bulk
 from .clearance import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
@@ -90,10 +90,10 @@ class ExpectedUtilityScore:
                                                       c[steps - 1], r[steps - 1], *cert.model, col.counter)
 
     def registered_cov(self, belief_cov=None) -> np.ndarray:
-        """The registration's own spread (motion.REGISTERED_SIGMA), plus the belief's
+        """The registration's own spread (planner.eu_registered_sigma), plus the belief's
         `belief_cov` (3, 3) when given: with verified views every rollout starts from it, a
         registered belief being only as good as the registration."""
-        cov = np.diag(np.square(REGISTERED_SIGMA))
+        cov = np.diag(np.square(np.asarray(self.sc.planner.eu_registered_sigma, float)))
         return cov if belief_cov is None else np.asarray(belief_cov, float) + cov
 
     def leg_cov(self) -> np.ndarray:

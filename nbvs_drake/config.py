@@ -325,6 +325,11 @@ class MissionConfig:
     #: partial overlap biases the pose by 3-10 mm at fitness ~1.0 (dragon EU-MU seed 1: a frame
     #: 1.0 cm off, every later scan 0.8-0.9 cm off), beyond the 3 mm coverage threshold
     fine_registration: bool = False
+    #: whether a localisation frame (mission.verify_views) that registered joins the
+    #: registration model, as the sensing scans do. False: frames only correct the belief, so
+    #: a frame registered a few mm off (a partial view of the object at a leg's end) cannot
+    #: bias every later registration
+    merge_frames: bool = True
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0

@@ -366,3 +366,36 @@ def test_the_scan_after_a_correction_is_registered_again_with_refine_scan_regist
     else:
         assert rep["icp"] is None
         np.testing.assert_array_equal(after.state, b.state)
+
+
+@pytest.mark.parametrize("merge", [True, False])
+def test_a_registered_frame_joins_the_registration_model_only_with_merge_frames(renderer, merge):  # noqa: F811
+    """mission.merge_frames: a localisation frame that registers corrects the belief either
+    way; it joins the registration model (the points later scans register against) only with
+    merge_frames, while the sensing scan always joins it."""
+    sc, r, s1 = renderer
+    sc = copy.deepcopy(sc)
+    sc.mission.verify_views = True
+    sc.mission.merge_frames = merge
+    q0, U, states, qt, qb, P2, Xb = second_scan_in_view(sc, r)
+    loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
+    lctx = loc.GetMyContextFromRoot(ctx)
+    tau_port = sim.get_system().GetInputPort("controls")
+    before = len(loc._mem_of(lctx).model.points)
+    target = states[-1].copy()
+    target[0] += 0.2  # a correction is due: the frame is not the sensing scan
+    tau_port.FixValue(ctx, AbstractValue.Make(ControlSequence(1, 0.1, U, states, "view", target)))
+    pc.GetMutableData().set_value(_cloud(P2))
+    status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
+    sim.AdvanceTo(0.25)
+    b = loc.GetOutputPort("belief").Eval(lctx)
+    assert b.check == "correct" and not np.array_equal(b.state, b.dead_reckoned)  # registered, corrected
+    after_frame = len(loc._mem_of(lctx).model.points)
+    assert (after_frame > before) if merge else (after_frame == before)
+    fix = ControlSequence(2, 0.1, np.zeros((0, 7)), b.state[None], "correct", target)
+    tau_port.FixValue(ctx, AbstractValue.Make(fix))
+    sim.AdvanceTo(0.35)
+    status.GetMutableData().set_value(np.array([2.0, 0.0, 1.0]))
+    sim.AdvanceTo(0.45)
+    assert loc.GetOutputPort("belief").Eval(lctx).check == ""  # the sensing scan
+    assert len(loc._mem_of(lctx).model.points) > after_frame

@@ -433,35 +433,49 @@ def _pose_robot(qn, model, scratch):
 
 
 @nb.njit(cache=True, inline="always")
+def _pair_gap(a, c, gp, sw, g_vert, g_r, g_h, s0, rad, stop):
+    """A bound of the distance between robot geometries a and c at the posed state
+    (`_pose_robot`'s gp, sw) in a model whose spheres have the radii `rad` (s_rho: balls that
+    contain the geometry, so a lower bound; s_in: balls inside it, so an upper bound, negative
+    when they overlap). Two vertical cylinders are exact (negative: the least overlap, in x-y
+    or in z). Stops at the first sphere term below `stop`."""
+    if g_vert[a] and g_vert[c]:
+        ox = g_r[a] + g_r[c] - math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2)
+        oz = g_h[a] + g_h[c] - abs(gp[a, 2] - gp[c, 2])
+        if ox > 0.0 and oz > 0.0:
+            return -min(ox, oz)
+        gxy, gz = max(-ox, 0.0), max(-oz, 0.0)
+        return math.sqrt(gxy * gxy + gz * gz)
+    if g_vert[c]:  # the vertical one as `a`
+        a, c = c, a
+    best = np.inf
+    for k in range(s0[c], s0[c + 1]):
+        if g_vert[a]:
+            best = min(best, _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2],
+                                                      g_r[a], g_h[a]) - rad[k])
+        else:
+            for k2 in range(s0[a], s0[a + 1]):
+                best = min(best, math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
+                                           + (sw[k, 2] - sw[k2, 2]) ** 2) - rad[k] - rad[k2])
+        if best < stop:
+            return best
+    return best
+
+
+@nb.njit(cache=True, inline="always")
 def _pair_overlaps(gp, sw, g_vert, g_r, g_h, g_bound, s0, s_in, pairs, pair_pad):
     """Whether some robot pair that Drake checks (padding >= 0) is proved in collision at the
-    posed state (`_pose_robot`'s gp, sw): two vertical cylinders that still overlap when each is
-    shrunk by EPS, or a ball inside one geometry (s_in about a sphere centre) that reaches more
-    than EPS into the other (into the exact vertical cylinder, or into a ball inside it)."""
+    posed state: in the inner model (balls inside the geometries, the vertical cylinders
+    exact) the two reach more than EPS into each other (`_pair_gap`)."""
     for j in range(pairs.shape[0]):
         if not pair_pad[j] >= 0.0:
             continue
         a, c = pairs[j, 0], pairs[j, 1]
-        dxy = math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2)
-        dz = abs(gp[a, 2] - gp[c, 2])
-        if math.sqrt(dxy * dxy + dz * dz) >= g_bound[a] + g_bound[c]:
+        if math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2
+                     + (gp[a, 2] - gp[c, 2]) ** 2) >= g_bound[a] + g_bound[c]:
             continue  # their bounding balls are apart
-        if g_vert[a] and g_vert[c]:
-            if dxy < g_r[a] + g_r[c] - 2 * EPS and dz < g_h[a] + g_h[c] - 2 * EPS:
-                return True
-            continue
-        if g_vert[c]:  # the vertical one as `a`
-            a, c = c, a
-        for k in range(s0[c], s0[c + 1]):
-            if g_vert[a]:
-                if _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2], g_r[a],
-                                            g_h[a]) < s_in[k] - EPS:
-                    return True
-                continue
-            for k2 in range(s0[a], s0[a + 1]):
-                if math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
-                             + (sw[k, 2] - sw[k2, 2]) ** 2) < s_in[k] + s_in[k2] - EPS:
-                    return True
+        if _pair_gap(a, c, gp, sw, g_vert, g_r, g_h, s0, s_in, -EPS) < -EPS:
+            return True
     return False
 
 
@@ -509,24 +523,8 @@ def _classify_one(qn, model, scratch) -> int:
         dd = math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2 + (gp[a, 2] - gp[c, 2]) ** 2)
         if dd > g_bound[a] + g_bound[c] + pad + EPS:
             continue
-        if g_vert[a] and g_vert[c]:
-            gxy = max(math.sqrt((gp[a, 0] - gp[c, 0]) ** 2 + (gp[a, 1] - gp[c, 1]) ** 2) - g_r[a] - g_r[c], 0.0)
-            gz = max(abs(gp[a, 2] - gp[c, 2]) - g_h[a] - g_h[c], 0.0)
-            if math.sqrt(gxy * gxy + gz * gz) <= pad + EPS:
-                return UNKNOWN
-            continue
-        if g_vert[c]:  # the vertical one as `a`
-            a, c = c, a
-        for k in range(s0[c], s0[c + 1]):
-            if g_vert[a]:
-                if _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2], g_r[a],
-                                            g_h[a]) <= s_rho[k] + pad + EPS:
-                    return UNKNOWN
-                continue
-            for k2 in range(s0[a], s0[a + 1]):
-                if math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
-                             + (sw[k, 2] - sw[k2, 2]) ** 2) <= s_rho[k] + s_rho[k2] + pad + EPS:
-                    return UNKNOWN
+        if _pair_gap(a, c, gp, sw, g_vert, g_r, g_h, s0, s_rho, pad + EPS) <= pad + EPS:
+            return UNKNOWN
     return FREE
 
 
@@ -679,24 +677,8 @@ def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
         thr = pair_pad[j] + EPS
         dd = math.sqrt((gp[a, 0] - gp[c2, 0]) ** 2 + (gp[a, 1] - gp[c2, 1]) ** 2 + (gp[a, 2] - gp[c2, 2]) ** 2)
         c = dd - g_bound[a] - g_bound[c2] - thr
-        if c <= 0.0:
-            if g_vert[a] and g_vert[c2]:
-                gxy = max(math.sqrt((gp[a, 0] - gp[c2, 0]) ** 2 + (gp[a, 1] - gp[c2, 1]) ** 2) - g_r[a] - g_r[c2],
-                          0.0)
-                gz = max(abs(gp[a, 2] - gp[c2, 2]) - g_h[a] - g_h[c2], 0.0)
-                c = math.sqrt(gxy * gxy + gz * gz) - thr
-            else:
-                if g_vert[c2]:
-                    a, c2 = c2, a
-                c = np.inf
-                for k in range(s0[c2], s0[c2 + 1]):
-                    if g_vert[a]:
-                        c = min(c, _point_vertical_cylinder(sw[k, 0], sw[k, 1], sw[k, 2], gp[a, 0], gp[a, 1], gp[a, 2],
-                                                            g_r[a], g_h[a]) - s_rho[k] - thr)
-                        continue
-                    for k2 in range(s0[a], s0[a + 1]):
-                        c = min(c, math.sqrt((sw[k, 0] - sw[k2, 0]) ** 2 + (sw[k, 1] - sw[k2, 1]) ** 2
-                                             + (sw[k, 2] - sw[k2, 2]) ** 2) - s_rho[k] - s_rho[k2] - thr)
+        if c <= 0.0:  # classify's finer test (its least, where it is > 0)
+            c = _pair_gap(a, c2, gp, sw, g_vert, g_r, g_h, s0, s_rho, thr) - thr
             if c <= 0.0:
                 return c, c, 0.0
         pair_c[j] = c

@@ -197,3 +197,44 @@ def test_the_registered_spread_the_rollouts_start_from_is_the_scenarios():
     np.testing.assert_allclose(eu.leg_cov(), np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2 + turn]))
     with pytest.raises(ScenarioError, match="eu_registered_sigma"):
         load_scenario("cluttered_room", settings=["planner.eu_registered_sigma=[0.01, -1, 0.01]"])
+
+
+def test_a_candidate_unfeasible_with_its_arm_out_is_scored_again_with_the_arm_tucked(kin):
+    """planner.eu_tuck_retry: the tucked variant keeps the candidate's base motion and end
+    state, holds the arm at motion.TUCK_ARM while the base moves, is free by Drake's check,
+    and carries the longer path's distance factor; score() takes it in place of a candidate
+    the expected utility finds unfeasible when it is feasible itself."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.motion import TUCK_ARM, path_length
+    from nbvs_drake.planning.candidates import StateSampler
+    from nbvs_drake.planning.interface import PlanRequest, PlanResult
+    from nbvs_drake.planning.motion_planner import MotionPlanner, ObstacleModel
+    from nbvs_drake.planning.utility import ExpectedUtilityScore
+    sc = load_scenario("teapot_eu_mu", settings=["planner.eu_tuck_retry=true"])
+    obstacles = ObstacleModel(CollisionModel(sc, kin))
+    eu = ExpectedUtilityScore(sc, None, MotionPlanner(sc, kin, StateSampler(sc, kin)), None)
+    q0 = np.array(sc.robot.start, float)
+    q1 = q0.copy()
+    q1[:3] = [-1.3, -0.9, -1.2]
+    q1[3:] = [0.4, 0.6, -0.8, -0.5, 0.3]
+    controls = steer(q0, q1, sc.robot)[0][1]
+    states = rollout(q0, controls, sc.robot.control_dt)
+    rho = path_length(states, sc.planner.weights)
+    cand = PlanResult("ok", q1, controls, states, "together", 0.5 / (1 + rho), {"dist": 1 / (1 + rho), "rho": rho})
+    alt = eu.tucked(cand, obstacles)
+    assert alt is not None and alt.path_kind == "tuck"
+    np.testing.assert_allclose(alt.states[-1], states[-1], atol=1e-9)
+    moving = np.any(alt.controls[:, :2] != 0, axis=1)
+    np.testing.assert_allclose(alt.states[1:][moving][:, 4:7], np.broadcast_to(TUCK_ARM[1:4], (moving.sum(), 3)),
+                               atol=1e-9)  # the arm up while the base moves
+    assert obstacles.collision.free(alt.states).all()
+    assert alt.factors["rho"] == pytest.approx(path_length(alt.states, sc.planner.weights)) and alt.factors["rho"] > rho
+    assert alt.utility == pytest.approx(cand.utility * alt.factors["dist"] / cand.factors["dist"])
+    # score(): the arm-out candidate is unfeasible (here by fiat), its tucked variant is taken
+    real = eu.expected
+    eu.expected = lambda request, c, obs, un_total: real(request, c, obs, un_total) if c.path_kind == "tuck" \
+        else type(real(request, c, obs, un_total))(False, 0.0, 1, 1, 1)
+    eu.state_utility = lambda omap, s, un_total, dist, registration=True: np.full(len(s), dist)
+    sc.planner.eu_samples = 50
+    feasible, n = eu.score(PlanRequest(None, q0, np.random.default_rng(0)), [cand], obstacles, 1)
+    assert n == 1 and feasible == [cand] and cand.path_kind == "tuck" and cand.factors["eu"]["feasible"]

@@ -233,11 +233,6 @@ class PlannerConfig:
     #: errors up to ~2 cm); in the cluttered room, with the chairs and the table in the
     #: registration model, they measured 0.5 mm / 0.5 mrad RMS (the `nbvs_reach` cells)
     eu_registered_sigma: list[float] = dc.field(default_factory=lambda: [0.01, 0.01, 0.01])
-    #: a candidate that the expected utility finds unfeasible is scored again along the same
-    #: base motion with the arm tucked (motion.TUCK_ARM: up, out of the way) while the base
-    #: moves, and unfolded at the view: a heading error then cannot swing the arm into an
-    #: obstacle during a long turn (`ExpectedUtilityScore.tucked`)
-    eu_tuck_retry: bool = False
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or

@@ -182,27 +182,6 @@ class ExpectedUtilityScore:
             block_free=block_free if self.motion.bulk_checks else None,
             start_free=obstacles.free if (p.eu_free_start if free_start is None else free_start) else None)
 
-    def tucked(self, cand: PlanResult, obstacles: ObstacleModel) -> PlanResult | None:
-        """planner.eu_tuck_retry: the candidate along the same base motion with the arm tucked
-        while the base moves (`_tucked_controls`), if that path is free (Drake decides what
-        the bulk model cannot) and ends where the candidate's does; its distance factor and
-        utility follow the longer path (eq. 8). None otherwise, or when the base stands still."""
-        from ..motion import path_length, rollout
-        rc, p = self.sc.robot, self.sc.planner
-        c = np.asarray(cand.controls, float)
-        if not np.any(c[:, :2] != 0.0):
-            return None
-        controls = _tucked_controls(cand.states[0], c, rc)
-        states = rollout(cand.states[0], controls, rc.control_dt)
-        if not np.allclose(states[-1], cand.states[-1], atol=1e-6) or not self.motion.path_free(states, obstacles):
-            return None
-        factors = dict(cand.factors)
-        if p.use_distance and "dist" in factors:
-            rho = path_length(states, p.weights)
-            factors["rho"], factors["dist"] = rho, 1.0 / (1.0 + rho)
-        scale = factors["dist"] / cand.factors["dist"] if cand.factors.get("dist") else 1.0
-        return PlanResult("ok", cand.q_goal, controls, states, "tuck", cand.utility * scale, factors)
-
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):
         """The utility of a rollout's final state when views are verified (mission.verify_views,
         planning/recovery.py): the robot re-aims at the planned view before it scans, so the
@@ -226,32 +205,10 @@ class ExpectedUtilityScore:
         n_feasible = 0
         for r in reachable:
             eu = self.expected(request, r, obstacles, un_total)
-            if not eu.feasible and self.sc.planner.eu_tuck_retry:
-                alt = self.tucked(r, obstacles)
-                if alt is not None:
-                    eu_alt = self.expected(request, alt, obstacles, un_total)
-                    if eu_alt.feasible:
-                        r.controls, r.states, r.path_kind, r.factors = alt.controls, alt.states, alt.path_kind, \
-                            alt.factors
-                        eu = eu_alt
             r.factors["eu"] = eu.to_json()
             r.utility = eu.value
             n_feasible += eu.feasible
         return [r for r in reachable if r.factors["eu"]["feasible"]], n_feasible
-
-
-def _tucked_controls(q0: np.ndarray, controls: np.ndarray, rc) -> np.ndarray:
-    """The base motion of `controls` with the arm tucked (motion.TUCK_ARM) while the base
-    moves: the arm to the tucked configuration, every step of base motion with the arm
-    still, the arm to where `controls` leave it (arm joints at constant velocity, exact)."""
-    from ..motion import TUCK_ARM, _arm_controls
-    c = np.asarray(controls, float)
-    arm0 = np.asarray(q0, float)[3:]
-    end_arm = arm0 + c[:, 2:].sum(axis=0) * rc.control_dt
-    tuck = np.where(np.isnan(TUCK_ARM), arm0, TUCK_ARM)
-    base = c[np.any(c[:, :2] != 0.0, axis=1)].copy()
-    base[:, 2:] = 0.0
-    return np.concatenate([_arm_controls(tuck - arm0, rc), base, _arm_controls(end_arm - tuck, rc)])
 
 
 def make_utility(sc: Scenario, evaluator: ViewEvaluator, motion: MotionPlanner, overlap_h: float | None):

@@ -2,8 +2,8 @@
 
     python scripts/oracle_pick_quality.py OBJECT SEED
 
-Runs the `oracle` experiment's nbv cell (the default scenario with the settings that
-experiment pins, 12 scans) for OBJECT (teapot, bunny, dragon) and SEED. After each plan it
+Runs the `oracle` experiment's nbv cell (its definition's scenario and settings, 12 scans)
+for OBJECT (teapot, bunny, dragon) and SEED. After each plan it
 ray-casts the chosen view against the true scene (planning/oracle.py's scoring: ground-truth
 samples its returns bring within 3 mm that the model does not cover yet) and the best of a
 fresh draw of planner.n_candidates candidates (their coarse scores, the best 100 at full
@@ -19,21 +19,18 @@ import sys
 import tempfile
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from nbvs_drake.config import load_scenario
+from nbvs_drake.experiments.definition import expand, load_definition, resolve
 from nbvs_drake.mission import run_mission
 from nbvs_drake.planning import make_planner
 from nbvs_drake.planning import random_sampling as rs
 from nbvs_drake.planning.candidates import free_candidates
-from nbvs_drake.planning.oracle import COVER_RADIUS
 from nbvs_drake.robot import RobotKinematics
 
 
 def main(obj: str, seed: int) -> None:
-    sets = ["planner.arc_steering=false", "planner.free_goal_heading=false", "planner.coarse_stride=0",
-            "mission.max_scans=12", f"scene.object.kind={obj}"] + (["scene.object.size=-1"] if obj != "teapot" else [])
-    sc = load_scenario("default", seed=seed, settings=sets)
+    runs = expand(resolve(load_definition("oracle"), seeds=[seed]))
+    sc = next(r for r in runs if r.levels == {"object": obj, "planner": "nbv"}).resolve()
     kin = RobotKinematics()
     osc = copy.deepcopy(sc)
     osc.planner.strategy = "oracle"
@@ -45,11 +42,7 @@ def main(obj: str, seed: int) -> None:
         res = plan(self, request)
         if res.status != "ok":
             return res
-        todo = np.arange(len(oracle.gt))
-        model = np.asarray(request.omap.object_points, float)
-        if len(model):
-            d, _ = cKDTree(model).query(oracle.gt, distance_upper_bound=COVER_RADIUS * 1.0001)
-            todo = np.flatnonzero(~(np.isfinite(d) & (d <= COVER_RADIUS)))
+        todo = oracle.uncovered(request.omap.object_points)
         ours = oracle._gain(oracle.truth, np.asarray(res.q_goal)[None], todo)[0]
         cand = free_candidates(oracle.sampler, oracle.obstacles.for_map(request.omap),
                                np.random.default_rng([seed, 99, len(rows)]), request.omap, {}, {})

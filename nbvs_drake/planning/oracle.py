@@ -177,6 +177,15 @@ class OraclePlanner:
         self.coarse = TruthScene(sc, truth_mesh, stride=2)
         self.gt = reference_samples(sc, truth_mesh, sc.scene.gt_points)
 
+    def uncovered(self, object_points: np.ndarray) -> np.ndarray:
+        """Indices of the ground-truth samples not yet within 3 mm of the model's points."""
+        model = np.asarray(object_points, float)
+        if not len(model):
+            return np.arange(len(self.gt))
+        from scipy.spatial import cKDTree
+        d, _ = cKDTree(model).query(self.gt, distance_upper_bound=COVER_RADIUS * 1.0001)
+        return np.flatnonzero(~(np.isfinite(d) & (d <= COVER_RADIUS)))
+
     def _gain(self, scene: TruthScene, q: np.ndarray, todo: np.ndarray) -> np.ndarray:
         return np.array([len(newly_covered(scene.object_hits(X), self.gt, todo)) for X in self.kin.camera_poses(q)])
 
@@ -188,12 +197,7 @@ class OraclePlanner:
         obstacles = self.obstacles.for_map(request.omap)
         cand = free_candidates(self.sampler, obstacles, request.rng, request.omap, stages, times)
         t = time.perf_counter()
-        model = np.asarray(request.omap.object_points, float)
-        todo = np.arange(len(self.gt))
-        if len(model):
-            from scipy.spatial import cKDTree
-            d, _ = cKDTree(model).query(self.gt, distance_upper_bound=COVER_RADIUS * 1.0001)
-            todo = np.flatnonzero(~(np.isfinite(d) & (d <= COVER_RADIUS)))
+        todo = self.uncovered(request.omap.object_points)
         gain = self._gain(self.coarse, cand, todo).astype(float)
         best = np.argsort(-gain, kind="stable")[: 4 * p.top_k]
         best = best[gain[best] > 0]

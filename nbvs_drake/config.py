@@ -129,6 +129,13 @@ class MapperConfig:
     table_clearance: float = 0.005
 
 
+#: the error a registered belief keeps (m, m, rad standard deviations in x, y, heading; the
+#: corrected errors measured were mostly below 5 mm and 0.003 rad, at most 1.8 cm and 0.01 rad):
+#: planner.eu_registered_sigma's default, the prior of mission.refine_scan_registration and
+#: the floor of motion.min_leg_turn
+REGISTERED_SIGMA = (0.01, 0.01, 0.01)
+
+
 @dc.dataclass
 class PlannerConfig:
     #: "random_sampling" (Vasquez-Gomez et al. 2017), "ort" (the ORT paper) or "view_sampling"
@@ -229,10 +236,10 @@ class PlannerConfig:
     #: the spread (m, m, rad standard deviations in x, y, heading) of a registered belief
     #: that the rollouts of verified views start from (each leg after a localisation frame,
     #: and the recovery paths): the registration's own accuracy. The default,
-    #: motion.REGISTERED_SIGMA, is what the open scene's registrations measured (corrected
+    #: REGISTERED_SIGMA, is what the open scene's registrations measured (corrected
     #: errors up to ~2 cm); in the cluttered room, with the chairs and the table in the
     #: registration model, they measured 0.5 mm / 0.5 mrad RMS (the `nbvs_reach` cells)
-    eu_registered_sigma: list[float] = dc.field(default_factory=lambda: [0.01, 0.01, 0.01])
+    eu_registered_sigma: list[float] = dc.field(default_factory=lambda: list(REGISTERED_SIGMA))
     eu_alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     eu_gamma: float = 0.05
     #: obstacles of the unknown region for pos(x): "wbox" (the whole bounding box) or
@@ -303,7 +310,7 @@ class MissionConfig:
     recovery_rollouts: int = 0
     #: with verify_views: the sensing scan taken after a correction path (the frame before it
     #: registered, the camera re-aimed) is registered too, with the registration's own
-    #: spread (motion.REGISTERED_SIGMA) as its prior, and integrated at that pose where it
+    #: spread (REGISTERED_SIGMA) as its prior, and integrated at that pose where it
     #: registers (else at the belief, as without): a frame registered from a large error can
     #: stop in a wrong minimum that fits (seen at 1.6 cm, 11 mrad, fitness 1.0, after a
     #: 0.25 rad heading error), and a scan merged there corrupts the model every later

@@ -330,7 +330,7 @@ def test_the_scan_after_a_correction_is_registered_again_with_refine_scan_regist
     and the belief takes that registration's correction; without it the scan is taken at
     the belief (the frame before it registered, the correction path is exact)."""
     from nbvs_drake.motion import REGISTERED_SIGMA
-    loc, mapper, ctx, b, scan = _a_frame_then_its_correction(renderer, refine_scan_registration=refine)
+    loc, mapper, ctx, b, scan, _ = _a_frame_then_its_correction(renderer, refine_scan_registration=refine)
     mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
     scan()
     rep = mapper.GetOutputPort("scan_report").Eval(mctx).info
@@ -353,23 +353,22 @@ def test_a_registered_frame_joins_the_registration_model_only_with_merge_frames(
     """mission.merge_frames: a localisation frame that registers corrects the belief either
     way; it joins the registration model (the points later scans register against) only with
     merge_frames, while the sensing scan always joins it."""
-    before = []
-    loc, mapper, ctx, b, scan = _a_frame_then_its_correction(renderer, merge_frames=merge, before=before)
+    loc, mapper, ctx, b, scan, before = _a_frame_then_its_correction(renderer, merge_frames=merge)
     lctx = loc.GetMyContextFromRoot(ctx)
     assert not np.array_equal(b.state, b.dead_reckoned)  # registered, corrected
     after_frame = len(loc._mem_of(lctx).model.points)
-    assert (after_frame > before[0]) if merge else (after_frame == before[0])
+    assert (after_frame > before) if merge else (after_frame == before)
     scan()
     assert loc.GetOutputPort("belief").Eval(lctx).check == ""  # the sensing scan
     assert len(loc._mem_of(lctx).model.points) > after_frame
 
 
-def _a_frame_then_its_correction(renderer, before=None, **mission):  # noqa: F811
+def _a_frame_then_its_correction(renderer, **mission):  # noqa: F811
     """Verified views with the `mission` settings: the view plan's frame registers (the object
     in view) and asks for a correction (its target is beside where the plan ended). Returns
-    (localisation, mapper, root context, the belief after the frame, scan()), where scan()
-    runs the exact arm-only correction and its sensing scan; before gets the registration
-    model's size before the frame."""
+    (localisation, mapper, root context, the belief after the frame, scan(), the registration
+    model's size before the frame), where scan() runs the exact arm-only correction and its
+    sensing scan."""
     sc, r, s1 = renderer
     sc = copy.deepcopy(sc)
     sc.mission.verify_views = True
@@ -378,8 +377,7 @@ def _a_frame_then_its_correction(renderer, before=None, **mission):  # noqa: F81
     q0, U, states, qt, qb, P2, Xb = second_scan_in_view(sc, r)
     loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
     lctx = loc.GetMyContextFromRoot(ctx)
-    if before is not None:
-        before.append(len(loc._mem_of(lctx).model.points))
+    before = len(loc._mem_of(lctx).model.points)
     tau_port = sim.get_system().GetInputPort("controls")
     target = states[-1].copy()
     target[0] += 0.2
@@ -396,4 +394,4 @@ def _a_frame_then_its_correction(renderer, before=None, **mission):  # noqa: F81
         sim.AdvanceTo(0.35)
         status.GetMutableData().set_value(np.array([2.0, 0.0, 1.0]))
         sim.AdvanceTo(0.45)
-    return loc, mapper, ctx, b, scan
+    return loc, mapper, ctx, b, scan, before

@@ -259,6 +259,11 @@ class PlannerConfig:
     #: a ray that meets a chair before W_box's map sees the chair (uniform ray tracing only,
     #: hrt_a = 0). False: the map alone decides what a view sees, as in the papers' open scene
     view_occluders: bool = False
+    #: the coverage gain (metric "coverage") of a ray that lands on known surface counts the
+    #: sample density of the side of the voxel's surface that faces the ray (the points' normals;
+    #: planning/views.py facing_density), not of all its samples: a view of a thin part's
+    #: unseen side, or of a fold beside a seen one, gains. False: one density per voxel
+    facing_density: bool = False
     #: hierarchical ray tracing resolution parameter a (Vasquez-Gomez et al. 2017 §5.4): 0 = uniform ray
     #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
     hrt_a: int = 0

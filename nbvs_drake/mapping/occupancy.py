@@ -78,11 +78,12 @@ def grid_for_scenario(sc: Scenario) -> GridSpec:
 class OccupancyMap:
     """Immutable occupancy map snapshot: log-odds grid, accumulated object points, counters."""
 
-    __slots__ = ("spec", "model", "logodds", "object_points", "scan_count", "wbox_min", "wbox_max")
+    __slots__ = ("spec", "model", "logodds", "object_points", "object_normals", "scan_count", "wbox_min",
+                 "wbox_max")
 
     def __init__(self, spec: GridSpec, model: SensorModel, logodds: np.ndarray | None = None,
                  object_points: np.ndarray | None = None, scan_count: int = 0,
-                 wbox_min=None, wbox_max=None):
+                 wbox_min=None, wbox_max=None, object_normals: np.ndarray | None = None):
         self.spec = spec
         self.model = model
         if logodds is None:
@@ -93,6 +94,12 @@ class OccupancyMap:
             object_points = np.zeros((0, 3), np.float32)
         object_points.flags.writeable = False
         self.object_points = object_points
+        #: unit surface normal of each object point, towards the camera that saw it
+        #: (`scan_normals`; zero where unknown, e.g. a map saved before normals were kept)
+        if object_normals is None or len(object_normals) != len(object_points):
+            object_normals = np.zeros((len(object_points), 3), np.float32)
+        object_normals.flags.writeable = False
+        self.object_normals = object_normals
         self.scan_count = scan_count
         self.wbox_min = spec.bmin if wbox_min is None else np.asarray(wbox_min, float)
         self.wbox_max = spec.bmax if wbox_max is None else np.asarray(wbox_max, float)
@@ -182,14 +189,15 @@ class OccupancyMap:
         n_upd = integrate_scan(lo, self.spec.bmin.astype(np.float64), self.spec.res, origin, points, hit,
                                m.l_hit, m.l_miss, m.l_min, m.l_max)
         obj = np.concatenate([self.object_points, points[hit].astype(np.float32)])
-        new = OccupancyMap(self.spec, m, lo, obj, self.scan_count + 1, self.wbox_min, self.wbox_max)
+        nrm = np.concatenate([self.object_normals, scan_normals(origin, points[hit])])
+        new = OccupancyMap(self.spec, m, lo, obj, self.scan_count + 1, self.wbox_min, self.wbox_max, nrm)
         return new, {"points": int(len(points) - n_free), "no_return_rays": n_free,
                      "object_points": int(hit.sum()), "voxels_updated": int(n_upd)}
 
     def skipped(self) -> "OccupancyMap":
         """The same map counting one more scan (a scan taken but not integrated)."""
         return OccupancyMap(self.spec, self.model, self.logodds, self.object_points, self.scan_count + 1,
-                            self.wbox_min, self.wbox_max)
+                            self.wbox_min, self.wbox_max, self.object_normals)
 
     def obstacle_boxes(self, max_boxes: int = 300) -> tuple[list, int]:
         """The unknown and occupied voxels of W_box as at most `max_boxes` merged boxes
@@ -204,7 +212,8 @@ class OccupancyMap:
     # ---- export --------------------------------------------------------------------
     def save_npz(self, path):
         np.savez_compressed(path, logodds=self.logodds, bmin=self.spec.bmin, res=self.spec.res,
-                            object_points=self.object_points, scan_count=self.scan_count,
+                            object_points=self.object_points, object_normals=self.object_normals,
+                            scan_count=self.scan_count,
                             wbox_min=self.wbox_min, wbox_max=self.wbox_max,
                             model=np.array(dc.astuple(self.model)))
 
@@ -215,7 +224,29 @@ class OccupancyMap:
         spec = GridSpec(np.array(z["bmin"]), float(z["res"]), tuple(int(x) for x in lo.shape))
         return OccupancyMap(spec, SensorModel(*[float(x) for x in z["model"]]), lo,
                             np.array(z["object_points"]), int(z["scan_count"]),
-                            z["wbox_min"], z["wbox_max"])
+                            z["wbox_min"], z["wbox_max"],
+                            np.array(z["object_normals"]) if "object_normals" in z else None)
+
+
+#: neighbours of a scan's point that fit its surface normal (scan_normals)
+NORMAL_NEIGHBOURS = 15
+
+
+def scan_normals(origin: np.ndarray, points: np.ndarray, k: int = NORMAL_NEIGHBOURS) -> np.ndarray:
+    """Unit surface normals (N, 3) float32 of one scan's points, each the least-squares plane
+    of its k nearest neighbours in the same scan (Open3D), turned towards the camera at
+    `origin` that saw it; zero for a scan of fewer than 3 points. From one scan, so the
+    neighbours are samples of the surface one view saw, not a blend of registered views."""
+    pts = np.asarray(points, np.float64)
+    if len(pts) < 3:
+        return np.zeros((len(pts), 3), np.float32)
+    import open3d as o3d
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(min(k, len(pts))))
+    n = np.asarray(pc.normals)
+    away = np.einsum("ij,ij->i", n, np.asarray(origin, np.float64) - pts) < 0
+    n[away] *= -1.0
+    return n.astype(np.float32)
 
 
 def write_ply(path, points: np.ndarray):

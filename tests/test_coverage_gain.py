@@ -195,3 +195,111 @@ def test_rays_that_meet_known_surface_from_unknown_space_next_to_it_return_on_ne
     lo = _wall_behind((28, 30))
     near, q_near = near_surface(_map(lo))
     assert _gain_near(lo, dens, near, q_near)[0][K.M_COVER_GAIN] == pytest.approx(0.0, abs=1e-15)
+
+
+def _closed_form_at(t, density, cos):
+    a = (PITCH * t) ** 2 / cos
+    return STRIDE ** 2 * a * (math.exp(-COV_K * density) - math.exp(-COV_K * (density + 1.0 / a)))
+
+
+def _facing_gain(normal, d_side, x_cam=0.11):
+    """The wall's voxel the rays meet holds one side of surface, sampled at d_side with the
+    normal `normal`; every voxel's plain density is 4 * d_side (what one density per voxel
+    would say)."""
+    from nbvs_drake.planning.views import _BINS
+    lo = _wall()
+    dens = np.full(DIMS, 4.0 * d_side, np.float32)
+    slot = np.full(DIMS, -1, np.int32)
+    slot[30, 10, 10] = 0
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    b = int(np.argmax(_BINS @ n))
+    fd = np.zeros((1, len(_BINS)), np.float32)
+    fn = np.zeros((1, len(_BINS), 4), np.float32)
+    fd[0, b], fn[0, b] = d_side, [*n, 5.0]
+    dirs, tn, tf = _rays()
+    m = K.evaluate_views(lo.astype(np.float32), np.zeros(3), RES, np.array([[x_cam, 0.21, 0.21]]),
+                         R_CAM[None].copy(), dirs, tn, tf, L_FREE, L_OCC, 1, 2, False, 0.0,
+                         dens, COV_K, PITCH, STRIDE, facing=(slot, fd, fn), facing_cos=-0.25)[0]
+    return m[K.M_COVER_GAIN], len(dirs), 0.61 - x_cam
+
+
+def test_a_ray_gains_over_the_density_of_the_side_it_meets():
+    """planner.facing_density: a ray (along +x) that meets the sampled side (normal -x) gains
+    over that side's density; one that meets the back of it (normal +x, the unseen side of a
+    thin wall) gains as on unsampled surface; a side turned 60 degrees from the ray is met at
+    cos 0.5, its samples spread over twice the area."""
+    d1 = 1.0 / (PITCH * 0.5) ** 2
+    g, n, t = _facing_gain([-1.0, 0.0, 0.0], d1)
+    assert g == pytest.approx(n * _closed_form_at(t, d1, 1.0), rel=1e-5)  # rays within 0.002 rad of +x
+    g_back, _, _ = _facing_gain([1.0, 0.0, 0.0], d1)
+    assert g_back == pytest.approx(n * _closed_form_at(t, 0.0, 1.0), rel=1e-5)
+    assert g_back > 2 * g
+    g_turned, _, _ = _facing_gain([-0.5, np.sqrt(0.75), 0.0], d1)
+    assert g_turned == pytest.approx(n * _closed_form_at(t, d1, 0.5), rel=1e-3)
+    # the plain density (4 d1 everywhere) gives the same gain for both sides
+    lo, dens = _wall(), np.full(DIMS, 4.0 * d1)
+    m, _ = _gain(lo, 0.11, dens)
+    assert m[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(t, 4.0 * d1), rel=1e-6)
+
+
+def test_facing_density_keeps_the_two_sides_of_a_thin_wall_apart():
+    """Two sheets 4 mm apart in the same voxels, each sampled at 40,000 per m^2 with normals
+    facing away from each other (a thin wall seen from both sides): each voxel gets two bins,
+    each of about that density, where one density per voxel (sample_density) sees both
+    sheets' points as one surface."""
+    from nbvs_drake.config import Scenario
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    from nbvs_drake.planning.views import _BINS, facing_density, sample_density
+    m0 = OccupancyMap.for_scenario(Scenario())
+    rng = np.random.default_rng(1)
+    D, side = 40_000.0, 0.16
+    pts, nrm = [], []
+    for dx, nx in ((0.0, -1.0), (0.004, 1.0)):
+        n = int(D * side * side)
+        p = np.c_[np.full(n, 0.305 + dx), rng.uniform(0, side, n), rng.uniform(0, side, n)] + m0.spec.bmin
+        pts.append(p)
+        nrm.append(np.tile([nx, 0.0, 0.0], (n, 1)))
+    pts, nrm = np.concatenate(pts).astype(np.float32), np.concatenate(nrm).astype(np.float32)
+    m = OccupancyMap(m0.spec, m0.model, object_points=pts, wbox_min=m0.wbox_min, wbox_max=m0.wbox_max,
+                     object_normals=nrm)
+    slot, dens, norm = facing_density(m)
+    idx, _ = m0.spec.voxel_index(pts)
+    interior = (np.abs(pts[:, 1] - m0.spec.bmin[1] - side / 2) < 0.04) & (
+        np.abs(pts[:, 2] - m0.spec.bmin[2] - side / 2) < 0.04)
+    rows = np.unique(slot[tuple(idx[interior].T)])
+    assert len(rows) > 4 and np.all(rows >= 0)
+    minus, plus = int(np.argmax(_BINS @ [-1.0, 0, 0])), int(np.argmax(_BINS @ [1.0, 0, 0]))
+    for r in rows:
+        assert set(np.flatnonzero(norm[r, :, 3] > 0)) == {minus, plus}
+        np.testing.assert_allclose(norm[r, minus, :3], [-1.0, 0, 0], atol=1e-6)
+    sides = dens[rows][:, [minus, plus]]
+    np.testing.assert_allclose(np.median(sides, axis=0), D, rtol=0.1)
+    assert np.quantile(np.abs(sides / D - 1), 0.9) < 0.5
+    plain = sample_density(m)[tuple(idx[interior].T)]
+    assert np.median(plain) > 1.6 * D
+    # a map whose points carry no normals has no sides
+    assert facing_density(OccupancyMap(m0.spec, m0.model, object_points=pts)) is None
+
+
+def test_each_scan_keeps_the_normals_of_its_points_towards_the_camera():
+    """OccupancyMap.integrate fits each new point's normal within its own scan, turned towards
+    the camera; the normals travel with the points through save_npz / load_npz."""
+    import tempfile
+    from pathlib import Path
+
+    from nbvs_drake.config import Scenario
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    m0 = OccupancyMap.for_scenario(Scenario())
+    c = 0.5 * (m0.wbox_min + m0.wbox_max)
+    g = np.linspace(-0.05, 0.05, 21)
+    pts = np.array([[c[0] + u, c[1] + v, c[2]] for u in g for v in g])  # a horizontal patch
+    m1, _ = m0.integrate(c + [0.0, 0.0, 1.0], pts, 0.0)  # seen from above
+    m2, _ = m1.integrate(c + [0.0, 0.0, -1.0], pts + [0, 0, 0.004], 0.0)  # and from below
+    assert m2.object_normals.shape == m2.object_points.shape
+    n = len(pts)
+    np.testing.assert_allclose(m2.object_normals[:n], np.tile([0, 0, 1.0], (n, 1)), atol=1e-5)
+    np.testing.assert_allclose(m2.object_normals[n:], np.tile([0, 0, -1.0], (n, 1)), atol=1e-5)
+    with tempfile.TemporaryDirectory() as tmp:
+        m2.save_npz(Path(tmp) / "m.npz")
+        back = OccupancyMap.load_npz(Path(tmp) / "m.npz")
+    np.testing.assert_array_equal(back.object_normals, m2.object_normals)

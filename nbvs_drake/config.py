@@ -264,6 +264,12 @@ class PlannerConfig:
     #: planning/views.py facing_density), not of all its samples: a view of a thin part's
     #: unseen side, or of a fold beside a seen one, gains. False: one density per voxel
     facing_density: bool = False
+    #: m: the candidates' positions and the motion planner's paths keep the robot's base this
+    #: far from the environment and the map's obstacles (Drake's padding on the base link);
+    #: the expected utility's rollouts, the recovery paths and the executed motion meet the
+    #: true geometry. Under motion noise a path that grazes a chair fails Algorithm 1 (any
+    #: colliding rollout) however short it is. 0: off
+    base_clearance: float = 0.0
     #: hierarchical ray tracing resolution parameter a (Vasquez-Gomez et al. 2017 §5.4): 0 = uniform ray
     #: tracing; a > 0 starts at voxel size 2^a x voxel_size and refines where needed
     hrt_a: int = 0
@@ -589,6 +595,8 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.max_obstacle_boxes >= 1, f"planner.max_obstacle_boxes must be >= 1, got {p.max_obstacle_boxes}")
     _require(0 <= p.hrt_a <= 4, f"planner.hrt_a must be in 0..4, got {p.hrt_a}")
     _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
+    _require(p.base_clearance >= 0 and math.isfinite(p.base_clearance),
+             f"planner.base_clearance must be a finite distance >= 0 (m), got {p.base_clearance}")
     _require(not (p.view_occluders and p.hrt_a > 0),
              f"planner.view_occluders needs uniform ray tracing (planner.hrt_a = 0), got hrt_a = {p.hrt_a}")
     _require(p.max_view_distance == 0 or p.max_view_distance > rs.z_near,

@@ -71,7 +71,7 @@ def _pose(center, yaw=0.0):
 
 def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
                     add_wbox_obstacle: bool = False, collision: bool = True, visual: bool = True,
-                    obstacle_boxes=None):
+                    obstacle_boxes=None, floor_drop: float = 0.0):
     """Registers the environment on the world body of `plant` (before Finalize).
 
     object_obj: path of the object's OBJ (world-frame vertices) to add as visual (rendered)
@@ -81,6 +81,9 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
         inside W_box u O_env, so this is the conservative obstacle of the unknown region).
     obstacle_boxes: (centre, size) pairs added as collision-only boxes (the map's unknown
         and occupied voxels, merged).
+    floor_drop: the floor's collision box this much lower (m): a model whose base link is
+        padded by that much against the environment (planner.base_clearance) keeps the base's
+        own ground clearance.
     """
     from pydrake.geometry import Box as DBox
     from pydrake.geometry import Mesh
@@ -91,6 +94,8 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
     friction = CoulombFriction(0.5, 0.5)
     for b in environment_boxes(sc):
         X = _pose(b.center, b.yaw)
+        if b.name == "floor" and floor_drop:
+            X = _pose((b.center[0], b.center[1], b.center[2] - floor_drop), b.yaw)
         shape = DBox(*b.size)
         if visual:
             plant.RegisterVisualGeometry(world, X, shape, b.name, np.array(b.color))

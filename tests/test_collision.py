@@ -92,3 +92,42 @@ def test_contacts_name_what_the_robot_touches(model):
     assert any(x["b"] == "table_top" and x["a"].startswith("patrolbot_katana::") for x in c)
     assert [x["depth_m"] for x in c] == sorted((x["depth_m"] for x in c), reverse=True)
     assert model.contacts(np.array([-1.6, 1.0, 0.3, 0, 0.4, -0.3, -0.3, 0])) == []
+
+
+def test_base_clearance_pads_the_base_alone(kin):
+    """planner.base_clearance: the padded model counts the base as colliding within the
+    clearance of a chair (Drake's padding on the base link, the certificate's verdicts the
+    same as Drake's), not the arm; the floor, lowered by the padding, leaves the base's own
+    ground clearance; the true model is unchanged."""
+    from nbvs_drake.config import load_scenario
+    sc = load_scenario("cluttered_room")
+    true, padded = CollisionModel(sc, kin), CollisionModel(sc, kin, base_padding=0.1)
+    bare = CollisionModel(sc, kin, base_padding=0.1, certificate=False)
+    # chair 0's seat spans x in [1.04, 1.46] on the +x axis; the base (radius 0.25) faces away
+    tuck = [0.0, 0.35, -0.35, -0.25, 0.0]
+    q = np.array([[1.46 + 0.25 + gap, 0.0, 0.0, *tuck] for gap in (0.05, 0.15)] + [sc.robot.start])
+    np.testing.assert_array_equal(true.free(q), [True, True, True])
+    np.testing.assert_array_equal(padded.free(q), [False, True, True])
+    np.testing.assert_array_equal(bare.free(q), padded.free(q))
+    # the base link alone is padded against the environment
+    plant = padded.diagram.plant()
+    world = plant.world_body().index()
+    robot = padded.checker.robot_model_instances()[0]
+    pads = {plant.get_body(b).name(): padded.checker.GetPaddingBetween(b, world) for b in plant.GetBodyIndices(robot)}
+    assert pads.pop("base_link") == pytest.approx(0.1)
+    assert pads and all(v == 0.0 for v in pads.values())
+
+
+def test_paths_keep_the_base_clear_and_rollouts_meet_the_true_obstacles(kin):
+    """PlanningObstacles with planner.base_clearance: each plan's obstacles carry the padded
+    model for the positions and the paths (`for_paths`), the true one for the rest."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    from nbvs_drake.planning.motion_planner import PlanningObstacles
+    sc = load_scenario("cluttered_room", settings=["planner.base_clearance=0.1"])
+    obst = PlanningObstacles(sc, kin).for_map(OccupancyMap.for_scenario(sc))
+    assert obst.padded is not None and obst.for_paths() is obst.padded
+    q = np.array([[1.46 + 0.25 + 0.05, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0]])
+    assert obst.free(q)[0] and not obst.for_paths().free(q)[0]
+    plain = PlanningObstacles(load_scenario("cluttered_room"), kin).for_map(OccupancyMap.for_scenario(sc))
+    assert plain.padded is None and plain.for_paths() is plain

@@ -18,6 +18,10 @@ from . import bulk
 from .clearance import FREE, UNKNOWN, FreeCertificate, Unsupported
 
 
+#: the robot's base link (the PatrolBot's body), which planner.base_clearance pads
+BASE_BODY = "base_link"
+
+
 class CollisionModel:
     """Batched configuration checks in the robot state layout q = [x, y, theta, q1..q5].
 
@@ -25,22 +29,27 @@ class CollisionModel:
     instead of the planner's conservative W_box obstacle.
     obstacle_boxes: (centre, size) boxes standing for the unknown and occupied space of the
     map (Vasquez-Gomez et al. 2017 §3: O = W_obj u W_unk u O_env) instead of the whole W_box.
+    base_padding: the base link (BASE_BODY) counts as colliding within this distance of the
+    environment (Drake's padding; planner.base_clearance).
     """
 
     def __init__(self, sc: Scenario, kin: RobotKinematics, *, object_obj: str | None = None,
-                 padding: float = 0.0, obstacle_boxes=None, certificate: bool = True):
+                 padding: float = 0.0, obstacle_boxes=None, certificate: bool = True, base_padding: float = 0.0):
         from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
         rdb = RobotDiagramBuilder(time_step=0.0)
         plant = rdb.plant()
         robot = add_robot(plant, sc.robot.urdf)
         add_environment(plant, sc, object_obj=object_obj, visual=False, obstacle_boxes=obstacle_boxes,
-                        add_wbox_obstacle=object_obj is None and obstacle_boxes is None)
+                        add_wbox_obstacle=object_obj is None and obstacle_boxes is None, floor_drop=base_padding)
         plant.Finalize()
         self.diagram = rdb.Build()
         self.kin = kin
         self.checker = SceneGraphCollisionChecker(
             model=self.diagram, robot_model_instances=[robot], edge_step_size=0.02,
             env_collision_padding=padding, self_collision_padding=0.0)
+        if base_padding > 0:  # the base alone keeps this far from the environment (planner.base_clearance)
+            base = plant.GetBodyByName(BASE_BODY, robot).index()
+            self.checker.SetPaddingOneRobotBodyAllEnvironmentPairs(base, padding + base_padding)
         #: the free-space certificate (None: Drake checks every state; also when the world has
         #: geometry the certificate does not model)
         self.certificate = None

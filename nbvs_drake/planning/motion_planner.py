@@ -38,9 +38,16 @@ class ObstacleModel:
     collision: CollisionModel
     scan: int = -1
     stats: dict = dc.field(default_factory=dict)
+    #: planner.base_clearance: the same obstacles with the base padded, for the paths and the
+    #: candidates' positions (None: these obstacles)
+    padded: "ObstacleModel | None" = None
 
     def free(self, q: np.ndarray) -> np.ndarray:
         return self.collision.free(q)
+
+    def for_paths(self) -> "ObstacleModel":
+        """The obstacles the motion planner and the position filter use: `padded` when given."""
+        return self.padded or self
 
 
 class PlanningObstacles:
@@ -53,21 +60,30 @@ class PlanningObstacles:
         self.sc = sc
         self.kin = kin
         self._wbox = wbox_model
+        self._wbox_padded: ObstacleModel | None = None
         self._last: ObstacleModel | None = None
 
     def for_map(self, omap: OccupancyMap) -> ObstacleModel:
         p = self.sc.planner
+        pad = p.base_clearance
         if p.map_obstacles != "voxels":
             if self._wbox is None:
                 self._wbox = CollisionModel(self.sc, self.kin)
-            return ObstacleModel(self._wbox)
+                if pad > 0:
+                    self._wbox_padded = ObstacleModel(CollisionModel(self.sc, self.kin, base_padding=pad))
+            return ObstacleModel(self._wbox, padded=self._wbox_padded)
         if self._last is not None and self._last.scan == omap.scan_count:
-            return ObstacleModel(self._last.collision, self._last.scan)
+            return ObstacleModel(self._last.collision, self._last.scan, padded=self._last.padded)
         t = time.perf_counter()
         boxes, block = omap.obstacle_boxes(p.max_obstacle_boxes)
         model = CollisionModel(self.sc, self.kin, obstacle_boxes=boxes)
+        padded = None
+        if pad > 0:
+            padded = ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, base_padding=pad),
+                                   omap.scan_count)
         self._last = ObstacleModel(model, omap.scan_count, {
-            "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t})
+            "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t},
+            padded)
         return self._last
 
 

@@ -57,7 +57,10 @@ class RandomSamplingPlanner:
         times, stages = {}, {}
         obstacles: ObstacleModel = self.obstacles.for_map(omap)
         stages.update(obstacles.stats)
-        cand = free_candidates(generator, obstacles, rng, omap, stages, times)
+        # planner.base_clearance: the positions and the paths keep the base clear of the
+        # environment; the expected utility's rollouts meet the true obstacles
+        paths = obstacles.for_paths()
+        cand = free_candidates(generator, paths, rng, omap, stages, times)
 
         un_total = max(omap.unknown_count(), 1)
 
@@ -94,7 +97,7 @@ class RandomSamplingPlanner:
                 reachable = []
                 batch = ranked[start:start + p.top_k]
                 # one search for the whole batch (planner.motion_planner)
-                for i, found in zip(batch, self.motion.connect_many(request.q_start, cand[batch], obstacles, rng)):
+                for i, found in zip(batch, self.motion.connect_many(request.q_start, cand[batch], paths, rng)):
                     if found is None:
                         continue
                     kind, controls, states = found

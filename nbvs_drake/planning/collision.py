@@ -17,7 +17,6 @@ from ..scene import add_environment
 from . import bulk
 from .clearance import FREE, UNKNOWN, FreeCertificate, Unsupported
 
-
 #: the robot's base link (the PatrolBot's body), which planner.base_clearance pads
 BASE_BODY = "base_link"
 

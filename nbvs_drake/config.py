@@ -348,10 +348,6 @@ class MissionConfig:
     #: a frame registered a few mm off (a partial view of the object at a leg's end) cannot
     #: bias every later registration
     merge_frames: bool = True
-    #: with merge_frames: a localisation frame joins the registration model only when its
-    #: registration's fitness is at least this; a frame below it corrects the belief only.
-    #: 0: every registered frame joins
-    merge_min_fitness: float = 0.0
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0
@@ -599,8 +595,6 @@ def validate(sc: Scenario) -> Scenario:
     _require(p.max_obstacle_boxes >= 1, f"planner.max_obstacle_boxes must be >= 1, got {p.max_obstacle_boxes}")
     _require(0 <= p.hrt_a <= 4, f"planner.hrt_a must be in 0..4, got {p.hrt_a}")
     _require(p.max_generation_factor >= 1, "planner.max_generation_factor must be >= 1")
-    _require(0.0 <= sc.mission.merge_min_fitness <= 1.0,
-             f"mission.merge_min_fitness must be in [0, 1], got {sc.mission.merge_min_fitness}")
     _require(p.base_clearance >= 0 and math.isfinite(p.base_clearance),
              f"planner.base_clearance must be a finite distance >= 0 (m), got {p.base_clearance}")
     _require(not (p.view_occluders and p.hrt_a > 0),

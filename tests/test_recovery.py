@@ -396,16 +396,3 @@ def _a_frame_then_its_correction(renderer, **mission):  # noqa: F811
         sim.AdvanceTo(0.45)
     return loc, mapper, ctx, b, scan, before
 
-
-def test_a_frame_below_merge_min_fitness_corrects_the_belief_but_stays_out_of_the_model(renderer):  # noqa: F811
-    """mission.merge_min_fitness: a registered frame whose fitness is below the gate corrects
-    the belief as before, but does not join the registration model; at or above it, it does."""
-    loc, _, ctx, b, _, before = _a_frame_then_its_correction(renderer)
-    lctx = loc.GetMyContextFromRoot(ctx)
-    fit = loc._mem_of(lctx).frames[-1]["icp"]["fitness"]
-    assert 0.3 < fit < 1.0 and len(loc._mem_of(lctx).model.points) > before
-    for gate, joins in ((fit - 0.01, True), (min(fit + 0.01, 1.0), False)):
-        loc, _, ctx, gated, _, before = _a_frame_then_its_correction(renderer, merge_min_fitness=gate)
-        lctx = loc.GetMyContextFromRoot(ctx)
-        np.testing.assert_allclose(gated.state, b.state, atol=1e-9)  # the same correction
-        assert (len(loc._mem_of(lctx).model.points) > before) == joins

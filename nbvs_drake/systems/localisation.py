@@ -192,8 +192,7 @@ class Localisation(LeafSystem):
                                      _recoveries(mem.frames, self.sc.mission.leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
-        mi = self.sc.mission
-        if integrate and (not check or (icp.applied and mi.merge_frames and icp.fitness >= mi.merge_min_fitness)):
+        if integrate and (not check or (icp.applied and self.sc.mission.merge_frames)):
             model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),

@@ -131,3 +131,9 @@ def test_paths_keep_the_base_clear_and_rollouts_meet_the_true_obstacles(kin):
     assert obst.free(q)[0] and not obst.for_paths().free(q)[0]
     plain = PlanningObstacles(load_scenario("cluttered_room"), kin).for_map(OccupancyMap.for_scenario(sc))
     assert plain.padded is None and plain.for_paths() is plain
+    # with the whole W_box as the obstacle, also beside a W_box model given from outside
+    wsc = load_scenario("cluttered_room", settings=["planner.base_clearance=0.1", "planner.map_obstacles=wbox"])
+    given = CollisionModel(wsc, kin)
+    wobst = PlanningObstacles(wsc, kin, given).for_map(OccupancyMap.for_scenario(wsc))
+    assert wobst.collision is given and wobst.padded is not None
+    assert wobst.free(q)[0] and not wobst.for_paths().free(q)[0]

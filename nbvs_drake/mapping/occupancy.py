@@ -96,8 +96,10 @@ class OccupancyMap:
         self.object_points = object_points
         #: unit surface normal of each object point, towards the camera that saw it
         #: (`scan_normals`; zero where unknown, e.g. a map saved before normals were kept)
-        if object_normals is None or len(object_normals) != len(object_points):
+        if object_normals is None:
             object_normals = np.zeros((len(object_points), 3), np.float32)
+        elif len(object_normals) != len(object_points):
+            raise ValueError(f"{len(object_normals)} object normals for {len(object_points)} object points")
         object_normals.flags.writeable = False
         self.object_normals = object_normals
         self.scan_count = scan_count

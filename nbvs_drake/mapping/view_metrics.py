@@ -233,6 +233,12 @@ def _cover_gain(density, cov_k, pitch, stride2, t, cos=1.0):
     return stride2 * a * (math.exp(-cov_k * density) - math.exp(-cov_k * (density + 1.0 / a)))
 
 
+#: a ray meets the side of a voxel's surface whose normals face it (n . (-d) > FACING_COS, a
+#: little beyond 90 degrees as curved surface turns): evaluate_views' `facing`; chosen by
+#: measurement (docs/decisions.md)
+FACING_COS = -0.25
+
+
 @nb.njit(cache=True, inline="always")
 def _facing_density(row, fdens, fnorm, fcos, dx, dy, dz):
     """(density, cos) of the surface in an occupied voxel that a ray of direction (dx, dy, dz)
@@ -545,7 +551,7 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                    n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
                    density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0, occluders=None,
-                   score_only=False, roi_margin=-1.0, facing=None, facing_cos=0.5):
+                   score_only=False, roi_margin=-1.0, facing=None, facing_cos=FACING_COS):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the

@@ -65,26 +65,30 @@ class PlanningObstacles:
 
     def for_map(self, omap: OccupancyMap) -> ObstacleModel:
         p = self.sc.planner
-        pad = p.base_clearance
         if p.map_obstacles != "voxels":
             if self._wbox is None:
                 self._wbox = CollisionModel(self.sc, self.kin)
-                if pad > 0:
-                    self._wbox_padded = ObstacleModel(CollisionModel(self.sc, self.kin, base_padding=pad))
+            if self._wbox_padded is None:  # also beside a W_box model given to the constructor
+                self._wbox_padded = self._padded(None, -1)
             return ObstacleModel(self._wbox, padded=self._wbox_padded)
         if self._last is not None and self._last.scan == omap.scan_count:
             return ObstacleModel(self._last.collision, self._last.scan, padded=self._last.padded)
         t = time.perf_counter()
         boxes, block = omap.obstacle_boxes(p.max_obstacle_boxes)
         model = CollisionModel(self.sc, self.kin, obstacle_boxes=boxes)
-        padded = None
-        if pad > 0:
-            padded = ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, base_padding=pad),
-                                   omap.scan_count)
+        padded = self._padded(boxes, omap.scan_count)
         self._last = ObstacleModel(model, omap.scan_count, {
             "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t},
             padded)
         return self._last
+
+    def _padded(self, boxes, scan: int) -> ObstacleModel | None:
+        """planner.base_clearance > 0: the same obstacles (the map's `boxes`, or W_box when None)
+        with the base padded by it; else None."""
+        pad = self.sc.planner.base_clearance
+        if pad <= 0:
+            return None
+        return ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, base_padding=pad), scan)
 
 
 def reached_goal(sc: Scenario, goal: np.ndarray, states: np.ndarray) -> np.ndarray:

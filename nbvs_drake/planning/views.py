@@ -180,7 +180,7 @@ class ViewEvaluator:
             if self.facing_density:
                 f = self._facing(omap)
                 if f is not None:
-                    kw.update(facing=f, facing_cos=FACING_COS)
+                    kw.update(facing=f)
             if self.near_surface_model:
                 near, near_q = self._near(omap)
                 kw.update(near=near, near_q=near_q)
@@ -267,13 +267,22 @@ def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS) -> np.ndarra
     if int(np.count_nonzero(inside)) == 0 or len(pts) <= k:
         return out
     dk = cKDTree(pts).query(pts[inside], k + 1)[0][:, -1]  # the nearest is the point itself
-    dens = (k - 1.0 / 3.0) / (np.pi * np.maximum(dk, 1e-6) ** 2)
-    flat = np.ravel_multi_index(idx[inside].T, dims)
-    order = np.lexsort((dens, flat))  # by voxel, then by density
-    vox, start, count = np.unique(flat[order], return_index=True, return_counts=True)
-    # the median of each voxel's sorted densities (the upper middle for an even count)
-    out.reshape(-1)[vox] = dens[order][start + count // 2]
+    vox, med = _median_by(np.ravel_multi_index(idx[inside].T, dims), _knn_density(k, dk))
+    out.reshape(-1)[vox] = med
     return out
+
+
+def _knn_density(k, dk: np.ndarray) -> np.ndarray:
+    """Samples per m^2 at a point whose k-th neighbour (k may be per point) lies at dk:
+    (k - 1/3) / (pi dk^2) (see sample_density)."""
+    return (k - 1.0 / 3.0) / (np.pi * np.maximum(dk, 1e-6) ** 2)
+
+
+def _median_by(key: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distinct keys, the median of each key's values): the upper middle for an even count."""
+    order = np.lexsort((values, key))  # by key, then by value
+    keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    return keys, values[order][start + count // 2]
 
 
 #: the normal bins of facing_density: the 26 directions of a voxel's neighbours
@@ -282,9 +291,6 @@ _BINS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1
 _BINS /= np.linalg.norm(_BINS, axis=1)[:, None]
 #: two samples lie on the same side of a surface when their normals are within 60 degrees
 SAME_SIDE_COS = 0.5
-#: a ray meets the side of a voxel's surface whose normals face it (n . (-d) > FACING_COS, a little
-#: beyond 90 degrees as curved surface turns); chosen by measurement (docs/decisions.md)
-FACING_COS = -0.25
 
 
 def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
@@ -300,9 +306,10 @@ def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
     map's points carry no normals (a map saved before they were kept).
 
     One density per voxel (sample_density) counts a voxel as covered when any side of its
-    surface is: on the dragon after 7 scans 72 % of the ground truth not yet within 3 mm lay
-    in occupied voxels, three times the share that voxel density predicted uncovered, and
-    the view the coverage gain ranked first added a quarter of what the best candidate did."""
+    surface is: on the dragon (seed 1) 65-73 % of the ground truth not yet within 3 mm lay in
+    occupied voxels, 2-3 times the share that voxel density predicted uncovered there, and
+    the view the coverage gain ranked first added about half of what the best candidate did
+    (docs/decisions.md)."""
     from scipy.spatial import cKDTree
     pts = np.asarray(omap.object_points, np.float64)
     nrm = np.asarray(omap.object_normals, np.float64)
@@ -323,17 +330,15 @@ def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
     enough = cnt[:, -1] > k
     at = np.argmax(cnt > k, axis=1)  # the k-th neighbour on the same side
     dk = np.where(enough, dd[np.arange(len(sel)), at], dd[:, -1])
-    kk = np.where(enough, k, cnt[:, -1] - 1)
-    dens = (kk - 1.0 / 3.0) / (np.pi * np.maximum(dk, 1e-6) ** 2)
+    dens = _knn_density(np.where(enough, k, cnt[:, -1] - 1), dk)
     b = np.argmax(nrm[sel] @ _BINS.T, axis=1)
     flat = np.ravel_multi_index(idx[sel].T, dims)
     vox, row = np.unique(flat, return_inverse=True)
     slot.reshape(-1)[vox] = np.arange(len(vox), dtype=np.int32)
     key = row * nb + b
-    order = np.lexsort((dens, key))
-    keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
+    keys, med = _median_by(key, dens)
     tab = np.zeros((len(vox), nb), np.float32)
-    tab.reshape(-1)[keys] = dens[order][start + count // 2]
+    tab.reshape(-1)[keys] = med
     norm = np.zeros((len(vox), nb, 4), np.float64)
     np.add.at(norm.reshape(-1, 4), key, np.c_[nrm[sel], np.ones(len(sel))])
     n3 = norm[..., :3]

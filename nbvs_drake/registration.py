@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 
+import numba
 import numpy as np
 
 from .config import Scenario
@@ -174,6 +175,48 @@ class KnownSolids:
             t0, t1_ = np.maximum(lo.max(axis=1), 0.0), np.minimum(hi.min(axis=1), 1.0)
             out |= (t1_ - t0) * np.linalg.norm(d, axis=1) > tol
         return out
+
+    def blocked(self, origins: np.ndarray, P: np.ndarray, pairs: np.ndarray, tol: float = 0.01) -> np.ndarray:
+        """Whether the segment from each origin (N, 3) to each point (L, 3) runs more than
+        `tol` through a solid, (N, L) bool, tested only where `pairs` (N, L) is True (False
+        elsewhere): a point on a known surface is hidden from that origin (a chair's back
+        between the camera and the table)."""
+        out = np.zeros(pairs.shape, np.bool_)
+        if len(self.centers):
+            _blocked_pairs(np.ascontiguousarray(origins, np.float64), np.ascontiguousarray(P, np.float64),
+                           np.ascontiguousarray(pairs, np.bool_), np.ascontiguousarray(self.centers, np.float64),
+                           np.ascontiguousarray(self.half, np.float64), np.cos(self.yaw), np.sin(self.yaw),
+                           float(tol), out)
+        return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _blocked_pairs(O, P, pairs, centers, half, cos_y, sin_y, tol, out):
+    """`KnownSolids.blocked`'s kernel: slab tests of each segment in each box's frame."""
+    for n in range(O.shape[0]):
+        for i in range(P.shape[0]):
+            if not pairs[n, i]:
+                continue
+            for m in range(centers.shape[0]):
+                c, s = cos_y[m], sin_y[m]
+                ox, oy, oz = O[n, 0] - centers[m, 0], O[n, 1] - centers[m, 1], O[n, 2] - centers[m, 2]
+                px, py, pz = P[i, 0] - centers[m, 0], P[i, 1] - centers[m, 1], P[i, 2] - centers[m, 2]
+                o = (ox * c + oy * s, -ox * s + oy * c, oz)
+                d = (px * c + py * s - o[0], -px * s + py * c - o[1], pz - o[2])
+                t0, t1 = 0.0, 1.0
+                for a in range(3):
+                    h = half[m, a]
+                    if d[a] == 0.0:
+                        if abs(o[a]) > h:
+                            t0, t1 = 1.0, 0.0
+                    else:
+                        ta, tb = (-h - o[a]) / d[a], (h - o[a]) / d[a]
+                        if ta > tb:
+                            ta, tb = tb, ta
+                        t0, t1 = max(t0, ta), min(t1, tb)
+                if (t1 - t0) * np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) > tol:
+                    out[n, i] = True
+                    break
 
 
 @dc.dataclass(frozen=True)

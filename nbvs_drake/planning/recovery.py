@@ -98,9 +98,11 @@ def belief_samples(cov: np.ndarray, n: int, rng: np.random.Generator, beta: floa
 
 
 def landmarks_in_view(kin: RobotKinematics, sc: Scenario, states: np.ndarray, landmarks: np.ndarray,
-                      margin: float = 0.85) -> np.ndarray:
+                      margin: float = 0.85, solids=None) -> np.ndarray:
     """Share of the landmark points (L, 3) inside each state's field of view (shrunk by
-    `margin`) and depth range, (N,); occlusion is not modelled."""
+    `margin`) and depth range, (N,). With `solids` (registration.KnownSolids,
+    mission.landmark_occlusion) a landmark hidden behind a known solid from the camera does
+    not count; else occlusion is not modelled."""
     s = resolve_sensor(sc.sensor)
     tx, ty = margin * math.tan(math.radians(s.fov_x_deg) / 2), margin * math.tan(math.radians(s.fov_y_deg) / 2)
     X = kin.camera_poses(np.atleast_2d(states))
@@ -108,18 +110,22 @@ def landmarks_in_view(kin: RobotKinematics, sc: Scenario, states: np.ndarray, la
     P = np.einsum("nji,nlj->nli", R, landmarks[None] - o[:, None])  # camera frame, (N, L, 3)
     z = P[..., 2]
     ok = (z > s.z_near) & (z < min(s.z_far, 3.0)) & (np.abs(P[..., 0]) < tx * z) & (np.abs(P[..., 1]) < ty * z)
+    if solids is not None:
+        ok &= ~solids.blocked(o, landmarks, ok)
     return ok.mean(axis=1)
 
 
 def relocalisation_scores(kin: RobotKinematics, sc: Scenario, candidates: np.ndarray, cov: np.ndarray,
-                          landmarks: np.ndarray, rng: np.random.Generator, n_samples: int = 24) -> np.ndarray:
+                          landmarks: np.ndarray, rng: np.random.Generator, n_samples: int = 24,
+                          solids=None) -> np.ndarray:
     """For each candidate state (believed), the mean over poses drawn from the belief's spread
-    of the share of landmarks in view, (N,): how surely a scan from there sees what it can be
-    registered against, whatever the true pose within the spread."""
+    of the share of landmarks in view (behind no known solid, with `solids`), (N,): how surely
+    a scan from there sees what it can be registered against, whatever the true pose within
+    the spread."""
     xi = belief_samples(cov, n_samples, rng)
     out = np.zeros(len(candidates))
     for i, q in enumerate(np.atleast_2d(candidates)):
-        out[i] = landmarks_in_view(kin, sc, apply_corrections(q, xi), landmarks).mean()
+        out[i] = landmarks_in_view(kin, sc, apply_corrections(q, xi), landmarks, solids=solids).mean()
     return out
 
 
@@ -128,6 +134,15 @@ def arm_only_candidates(kin: RobotKinematics, q_now: np.ndarray, n: int, rng: np
     q = np.repeat(np.asarray(q_now, float)[None], n, axis=0)
     q[:, 3:] = rng.uniform(kin.arm_lower, kin.arm_upper, size=(n, NQ - 3))
     return q
+
+
+def landmark_solids(sc: Scenario):
+    """The known solids that hide registration landmarks (mission.landmark_occlusion: the
+    table and the chairs, `registration.KnownSolids`), or None (occlusion not modelled)."""
+    if not sc.mission.landmark_occlusion:
+        return None
+    from ..registration import KnownSolids
+    return KnownSolids.of(sc)
 
 
 def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.random.Generator,
@@ -155,6 +170,7 @@ class Recovery:
         self._center = 0.5 * (np.asarray(sc.scene.bbox_min, float) + np.asarray(sc.scene.bbox_max, float))
         self._checker = checker if sc.mission.recovery_rollouts > 0 else None
         self._checks = 0  # rollout checks so far: each draws from its own seeded generator
+        self._solids = landmark_solids(sc)
 
     #: the pose error a registered belief may still have (m, rad): a recovery path must stay
     #: free with its base moved by this much either way (`_direct`)
@@ -237,7 +253,7 @@ class Recovery:
         if not len(cand):
             return PlanResult("no_path")
         marks = registration_landmarks(self.sc, omap.object_points, rng)
-        score = relocalisation_scores(self.kin, self.sc, cand, cov, marks, rng)
+        score = relocalisation_scores(self.kin, self.sc, cand, cov, marks, rng, solids=self._solids)
         for i in np.argsort(-score, kind="stable")[:20]:
             found = self._direct(q_now, cand[i], obs, cov)
             if found is not None:

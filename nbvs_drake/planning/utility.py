@@ -189,16 +189,17 @@ class ExpectedUtilityScore:
         frame that finds the error. A rollout counts with g times the share of the planned
         view's registration landmarks (the object seen so far, the known environment) that
         stay in its field of view (at most 1): a drift that loses them costs a re-localisation."""
-        from .recovery import landmarks_in_view, registration_landmarks
+        from .recovery import landmark_solids, landmarks_in_view, registration_landmarks
         key = request.omap.scan_count
         if getattr(self, "_marks_key", None) != key:
             self._marks = registration_landmarks(self.sc, request.omap.object_points,
                                                  np.random.default_rng([self.sc.seed, 19, key]))
             self._marks_key = key
-        kin = self.evaluator.kin
-        nominal = max(float(landmarks_in_view(kin, self.sc, cand.states[-1:], self._marks)[0]), 1e-9)
+            self._solids = landmark_solids(self.sc)
+        kin, marks, solids = self.evaluator.kin, self._marks, self._solids
+        nominal = max(float(landmarks_in_view(kin, self.sc, cand.states[-1:], marks, solids=solids)[0]), 1e-9)
         g = cand.utility
-        return lambda s: g * np.minimum(1.0, landmarks_in_view(kin, self.sc, s, self._marks) / nominal)
+        return lambda s: g * np.minimum(1.0, landmarks_in_view(kin, self.sc, s, marks, solids=solids) / nominal)
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
               un_total: int) -> tuple[list[PlanResult], int]:

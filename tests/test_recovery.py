@@ -14,13 +14,15 @@ from nbvs_drake.motion import ControlSequence
 from nbvs_drake.planning.recovery import (
     aim_error,
     arm_correction,
+    arm_only_candidates,
     camera_error,
+    landmark_solids,
     landmarks_in_view,
     look_at_point,
     registration_landmarks,
     relocalisation_scores,
 )
-from nbvs_drake.registration import RegistrationConfig, region_mask
+from nbvs_drake.registration import KnownSolids, RegistrationConfig, region_mask
 
 
 def test_a_frame_that_cannot_be_registered_triggers_relocalisation_then_the_next_registers(renderer):  # noqa: F811
@@ -95,6 +97,53 @@ def test_recovery_geometry(kin):
     cov = np.diag([0.01, 0.01, 0.04])
     s = relocalisation_scores(kin, sc, np.stack([q, away]), cov, marks, np.random.default_rng(1))
     assert s[0] > 0.05 and s[1] == 0.0
+
+
+def test_known_solids_block_the_segments_the_see_through_check_flags():
+    """KnownSolids.blocked (the numba kernel of mission.landmark_occlusion) agrees with the
+    see-through check on random segments in the cluttered room, only where asked; a chair's
+    back hides the table from behind it, and a camera above the back sees over it."""
+    sc = load_scenario("cluttered_room")
+    solids = KnownSolids.of(sc)
+    rng = np.random.default_rng(0)
+    O = rng.uniform([-2.2, -2.2, 0.2], [2.2, 2.2, 1.2], (40, 3))
+    P = rng.uniform([-1.6, -1.6, 0.0], [1.6, 1.6, 1.0], (300, 3))
+    pairs = rng.random((40, 300)) < 0.7
+    B = solids.blocked(O, P, pairs, 0.01)
+    ref = np.stack([solids.seen_through(o, P, 0.01) for o in O]) & pairs
+    np.testing.assert_array_equal(B, ref)
+    assert 0.1 < B.sum() / pairs.sum() < 0.9
+    # chair 0's back stands at x = 1.44 (0.45-0.85 m high); the table top is 0.43 m high
+    o = np.array([[2.0, 0.0, 0.7], [2.0, 0.0, 1.1]])
+    tgt = np.array([[0.3, 0.0, sc.scene.table_height]])
+    np.testing.assert_array_equal(solids.blocked(o, tgt, np.ones((2, 1), bool))[:, 0], [True, False])
+
+
+def test_landmark_occlusion_picks_a_relocalisation_view_that_sees_the_table(tmp_path):
+    """From a base outside the chairs' ring (where nbvs_clear's re-localisation frames found
+    nothing to register), the arm-only view ranked first with mission.landmark_occlusion
+    returns several times the registration-region points of the one ranked first without
+    it, rendered by the real depth camera; the occlusion-aware score knows the blind pick
+    sees almost no landmark. Measured: 1274 against 302 points, scores 0.17 and 0.06."""
+    from nbvs_drake.robot import RobotKinematics
+    from nbvs_drake.scanning import ScanRenderer
+    sc = load_scenario("cluttered_room", settings=["mission.landmark_occlusion=true"])
+    kin = RobotKinematics(sc.robot.urdf)
+    solids = landmark_solids(sc)
+    assert solids is not None and landmark_solids(load_scenario("cluttered_room")) is None
+    marks = registration_landmarks(sc, np.zeros((0, 3)), np.random.default_rng(0))
+    q_now = np.array([1.6, 1.26, -0.55, 0.0, 0.35, -0.35, -0.25, 0.0])
+    cand = arm_only_candidates(kin, q_now, 200, np.random.default_rng(3))
+    cov = np.diag([0.062, 0.046, 0.039]) ** 2
+    blind = relocalisation_scores(kin, sc, cand, cov, marks, np.random.default_rng(1))
+    seen = relocalisation_scores(kin, sc, cand, cov, marks, np.random.default_rng(1), solids=solids)
+    ia, ib = int(np.argmax(blind)), int(np.argmax(seen))
+    assert seen[ia] < 0.1 < seen[ib] and blind[ia] > 0.5
+    r = ScanRenderer(sc, tmp_path)
+    cfg = RegistrationConfig()
+    n = [int(region_mask(sc, r.scan(cand[i]).points, cfg).sum()) for i in (ia, ib)]
+    print("region points: blind pick", n[0], "occlusion-aware pick", n[1])
+    assert n[1] > 3 * n[0]
 
 
 def test_an_eu_plan_with_no_feasible_candidate_tries_the_arm_only_fallback(first_scan_map, kin):

@@ -1,4 +1,5 @@
-"""Compiles the motion planner's numba kernels (planning/bulk.py, planning/clearance.py) into
+"""Compiles the motion planner's numba kernels (planning/bulk.py, planning/clearance.py; and
+registration.KnownSolids.blocked) into
 numba's on-disk cache, each called once with the types a mission gives it
 (`nbvs_drake.warmup`, which `make setup` runs, calls it and then a two-scan run)."""
 
@@ -36,6 +37,8 @@ def warm_kernels() -> float:
     grid.insert(q, 1)
     bulk.tree_extensions(q, np.full((len(q), cert.margin_size), -1.0), q[1:], w, 1.0, rc, kin.arm_lower, kin.arm_upper,
                          *cert.model, 0.04, cm.counter, *grid.arrays, 1)
+    from ..registration import KnownSolids  # mission.landmark_occlusion's segment test
+    KnownSolids.of(sc).blocked(np.zeros((1, 3)), np.ones((1, 3)), np.ones((1, 1), bool))
     return time.perf_counter() - t
 
 

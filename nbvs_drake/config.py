@@ -355,11 +355,6 @@ class MissionConfig:
     #: a frame registered a few mm off (a partial view of the object at a leg's end) cannot
     #: bias every later registration
     merge_frames: bool = True
-    #: the registration matches a scan point only with model points seen from the same side
-    #: of their surface (each point keeps the direction to the camera that saw it): the two
-    #: faces of a thin part lie a few mm apart, within the finest stage's 8 mm, and a view of
-    #: one face would otherwise slide onto the other (registration.RegistrationConfig.side_gate)
-    registration_sides: bool = False
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0

@@ -56,9 +56,6 @@ class RegistrationConfig:
     grid_major: tuple = (-2.0, -1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0)
     grid_minor: tuple = (-1.5, 0.0, 1.5)
     refine_best: int = 4  #: grid starts refined to the last stage
-    #: mission.registration_sides: a scan point and a model point seen from opposite sides of
-    #: the surface (the two faces of a thin part, mm apart) are not a correspondence
-    side_gate: bool = False
 
 
 #: mission.fine_registration: the last stage (scan voxel, correspondence distance, m) and the
@@ -69,7 +66,7 @@ FINE_SIGMA = 0.002
 
 def registration_config(sc: Scenario) -> RegistrationConfig:
     """The registration's settings for a scenario's mission (residual cap, fine stage)."""
-    cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap(), side_gate=sc.mission.registration_sides)
+    cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap())
     if sc.mission.fine_registration:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
     return cfg
@@ -84,43 +81,29 @@ def region_mask(sc: Scenario, P: np.ndarray, cfg: RegistrationConfig) -> np.ndar
 
 
 class RegistrationModel:
-    """Immutable accumulated model: points (N, 3) float32 of the registration region, their
-    normals (N, 3) float32, known for the environment's surfaces and zero where they are to
-    be estimated from the points (the merged scans), and the unit directions (N, 3) float32
-    from each point towards the camera that saw it (the side of the surface it was seen
-    from; the outward normal for the environment; zero where not known)."""
+    """Immutable accumulated model: points (N, 3) float32 of the registration region and
+    their normals (N, 3) float32, known for the environment's surfaces and zero where they
+    are to be estimated from the points (the merged scans)."""
 
-    __slots__ = ("points", "normals", "views")
+    __slots__ = ("points", "normals")
 
-    def __init__(self, points: np.ndarray | None = None, normals: np.ndarray | None = None,
-                 views: np.ndarray | None = None):
+    def __init__(self, points: np.ndarray | None = None, normals: np.ndarray | None = None):
         pts = np.zeros((0, 3), np.float32) if points is None else np.asarray(points, np.float32)
         nrm = np.zeros_like(pts) if normals is None else np.asarray(normals, np.float32)
-        vw = np.zeros_like(pts) if views is None else np.asarray(views, np.float32)
-        if nrm.shape != pts.shape or vw.shape != pts.shape:
-            raise ValueError(f"normals {nrm.shape} and views {vw.shape} do not match points {pts.shape}")
-        for a in (pts, nrm, vw):
-            a.flags.writeable = False
-        self.points, self.normals, self.views = pts, nrm, vw
+        if nrm.shape != pts.shape:
+            raise ValueError(f"normals {nrm.shape} do not match points {pts.shape}")
+        pts.flags.writeable = False
+        nrm.flags.writeable = False
+        self.points, self.normals = pts, nrm
 
     def __deepcopy__(self, memo):
         return self
 
-    def merged(self, P: np.ndarray, cfg: RegistrationConfig, origin=None) -> "RegistrationModel":
-        """The model with the points P added (voxel-downsampled, the first point per voxel
-        kept); `origin`: the camera they were seen from (their `views`)."""
+    def merged(self, P: np.ndarray, cfg: RegistrationConfig) -> "RegistrationModel":
         P = np.asarray(P, np.float32)
         allp = np.concatenate([self.points, P])
         idx = voxel_downsample_index(allp, cfg.model_voxel)
-        v = np.zeros_like(P) if origin is None else view_directions(np.asarray(origin, float), P)
-        return RegistrationModel(allp[idx], np.concatenate([self.normals, np.zeros_like(P)])[idx],
-                                 np.concatenate([self.views, v])[idx])
-
-
-def view_directions(origin: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """Unit vectors (N, 3) float32 from each point towards the camera at `origin`."""
-    v = np.asarray(origin, float)[None] - np.asarray(P, float)
-    return (v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)).astype(np.float32)
+        return RegistrationModel(allp[idx], np.concatenate([self.normals, np.zeros_like(P)])[idx])
 
 
 def box_surface_points(center, size, yaw: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -159,7 +142,7 @@ def environment_model(sc: Scenario, cfg: RegistrationConfig) -> RegistrationMode
     keep = region_mask(sc, P, cfg)
     P, N = P[keep], N[keep]
     idx = voxel_downsample_index(P, cfg.model_voxel)
-    return RegistrationModel(P[idx], N[idx], N[idx])
+    return RegistrationModel(P[idx], N[idx])
 
 
 @dc.dataclass(frozen=True)
@@ -313,9 +296,6 @@ class PlanarIcp:
                  view: ScanView | None = None):
         from scipy.spatial import cKDTree
         self.cfg, self.free_at, self.view = cfg, free_at, view
-        #: cfg.side_gate: each model point's and each scan point's direction to its camera
-        self.VQ = np.asarray(model.views, float) if cfg.side_gate and view is not None else None
-        self.origin = np.asarray(view.origin, float) if view is not None else None
         self.view_pts = _downsample(view.points, cfg.model_voxel) if view is not None and len(view.points) else None
         self.Q = np.asarray(model.points, float)
         self.NQ = _normals(self.Q, 2.5 * cfg.model_voxel)
@@ -338,10 +318,6 @@ class PlanarIcp:
                 ok = np.isfinite(d)
                 if ok.sum() < 10:
                     break
-                if self.VQ is not None:
-                    ok &= ~self._opposite(P, np.where(ok, j, 0))
-                    if ok.sum() < 10:
-                        break
                 x, q, n = X[ok], Q[j[ok]], NQ[j[ok]]
                 r = np.sum(n * (x - q), axis=1)
                 rx, ry = x[:, 0] - xi[0], x[:, 1] - xi[1]
@@ -356,14 +332,6 @@ class PlanarIcp:
                 if np.abs(step).max() < 1e-6:
                     break
         return xi
-
-    def _opposite(self, P, j, min_cos: float = 0.2) -> np.ndarray:
-        """cfg.side_gate: whether scan point P[i] and model point j[i] were seen from opposite
-        sides of the model point's surface, each clearly (|n . v| > min_cos), (N,) bool."""
-        n, vm = self.NQ[j], self.VQ[j]
-        vs = view_directions(self.origin, P)
-        a, b = np.sum(n * vs, axis=1), np.sum(n * vm, axis=1)
-        return (a * b < 0) & (np.abs(a) > min_cos) & (np.abs(b) > min_cos)
 
     def evaluate(self, xi):
         """(MAP cost, fitness, rmse): the cost caps residuals at `cfg.residual_cap` (or the
@@ -382,8 +350,6 @@ class PlanarIcp:
         d, j = self.tree.query(X, distance_upper_bound=dmax)
         ok = np.isfinite(d)
         jj = np.where(ok, j, 0)
-        if self.VQ is not None:  # a match on the surface's other side is no match
-            ok &= ~self._opposite(self.fine, jj)
         r = np.where(ok, np.sum(NQ[jj] * (X - Q[jj]), axis=1), dmax)
         structure = np.where(ok, np.abs(NQ[jj][:, 2]) < 0.7, True)
         rs = r[structure]

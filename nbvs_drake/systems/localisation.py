@@ -193,7 +193,7 @@ class Localisation(LeafSystem):
         t_register = time.perf_counter() - t1
         model = mem.model
         if integrate and (not check or (icp.applied and self.sc.mission.merge_frames)):
-            model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg, X_WC[:3, 3])
+            model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
                      icp=icp.to_json() if icp is not None else None)

@@ -160,21 +160,8 @@ class KnownSolids:
     def seen_through(self, origin: np.ndarray, P: np.ndarray, tol: float) -> np.ndarray:
         """Whether the ray from `origin` to each return runs more than `tol` through a solid:
         a return the scene cannot have produced (it lies behind a known surface)."""
-        P = np.asarray(P, float)
-        out = np.zeros(len(P), bool)
-        for c, h, yaw in zip(self.centers, self.half, self.yaw):
-            R = rot_z(yaw)
-            o = (np.asarray(origin, float) - c) @ R
-            d = (P - c) @ R - o
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t1, t2 = (-h - o) / d, (h - o) / d
-            lo, hi = np.minimum(t1, t2), np.maximum(t1, t2)
-            par = d == 0  # parallel to a slab: inside it always or never
-            lo = np.where(par, np.where(np.abs(o) <= h, -np.inf, np.inf), lo)
-            hi = np.where(par, np.where(np.abs(o) <= h, np.inf, -np.inf), hi)
-            t0, t1_ = np.maximum(lo.max(axis=1), 0.0), np.minimum(hi.min(axis=1), 1.0)
-            out |= (t1_ - t0) * np.linalg.norm(d, axis=1) > tol
-        return out
+        P = np.asarray(P, float).reshape(-1, 3)
+        return self.blocked(np.asarray(origin, float)[None], P, np.ones((1, len(P)), bool), tol)[0]
 
     def blocked(self, origins: np.ndarray, P: np.ndarray, pairs: np.ndarray, tol: float = 0.01) -> np.ndarray:
         """Whether the segment from each origin (N, 3) to each point (L, 3) runs more than

@@ -355,12 +355,6 @@ class MissionConfig:
     #: a frame registered a few mm off (a partial view of the object at a leg's end) cannot
     #: bias every later registration
     merge_frames: bool = True
-    #: with merge_frames: a localisation frame joins the registration model only when its
-    #: registration's fitness is at least this (0: every registered frame joins). A frame
-    #: exists to localise, and the sensing scan after it joins the model anyway; a frame of
-    #: low overlap (bunny DU-MU seed 9: fitness 0.48, 17 mm off) merged into the model moves
-    #: every later registration onto its error (docs/decisions.md)
-    frame_merge_min_fitness: float = 0.0
     #: stop when the unknown voxels of W_box fall below this many (0: off; the authors'
     #: library uses 15)
     stop_unknown_voxels: int = 0
@@ -582,8 +576,6 @@ def validate(sc: Scenario) -> Scenario:
     cap = sc.mission.registration_residual_cap
     _require(cap == -1 or 0 <= cap <= 0.02,
              f"mission.registration_residual_cap must be -1 (auto) or in [0, 0.02] m, got {cap}")
-    fm = sc.mission.frame_merge_min_fitness
-    _require(_finite(fm) and 0 <= fm <= 1, f"mission.frame_merge_min_fitness must be in [0, 1], got {fm}")
     _require(p.top_k > 0, f"planner.top_k must be > 0, got {p.top_k}")
     _require(p.utility in ("du", "eu"), f"planner.utility must be 'du' or 'eu', got {p.utility!r}")
     _require(p.eu_samples >= 1, f"planner.eu_samples must be >= 1, got {p.eu_samples}")

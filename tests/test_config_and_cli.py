@@ -38,7 +38,6 @@ def _cli_error(capsys, tmp_path, yaml_text, name="bad.yaml"):
     ("mission:\n  stop_min_surface: 1.5\n", "mission.stop_min_surface must be in [0, 1)"),
     ("mission:\n  stop_unknown_voxels: -3\n", "mission.stop_unknown_voxels must be >= 0"),
     ("mission:\n  recovery_rollouts: -1\n", "mission.recovery_rollouts must be >= 0"),
-    ("mission:\n  frame_merge_min_fitness: 1.2\n", "mission.frame_merge_min_fitness must be in [0, 1]"),
     ("planner:\n  view_occluders: true\n  hrt_a: 2\n", "planner.view_occluders needs uniform ray tracing"),
 ])
 def test_bad_scenarios_get_one_line_errors(capsys, tmp_path, yaml_text, expect):

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from nbvs_drake.cli import main
+from nbvs_drake.config import load_scenario
 from nbvs_drake.experiments import (
     ExperimentError,
     comparable,
@@ -68,7 +69,6 @@ def test_every_experiment_is_listed_with_paper_runs_and_cost(capsys):
 def test_definition_expands_to_its_runs(name):
     """Every built-in definition loads, its quick version is smaller, the published values
     name existing factors and levels, and each run's overrides are valid scenario settings."""
-    from nbvs_drake.config import load_scenario
     d = load_definition(name)
     full, quick = expand(resolve(d)), expand(resolve(d, quick=True))
     assert 0 < len(quick) < len(full) or (len(quick) == len(full) == 1)
@@ -86,12 +86,12 @@ def test_definition_expands_to_its_runs(name):
 def test_full_sizes_follow_the_papers():
     size = {n: len(expand(resolve(load_definition(n)))) for n in NAMES}
     # Table 5: three objects, three approaches, ten runs; with the paper's settings and this
-    # project's planner (nbvs, nbvs_refine, nbvs_fine, nbvs_sight, nbvs_gate)
-    assert size["motion_noise"] == 3 * 3 * 10 * 6
+    # project's planner (nbvs, nbvs_refine, nbvs_fine, nbvs_sight)
+    assert size["motion_noise"] == 3 * 3 * 10 * 5
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
     # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
-    # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_gate)
-    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 7
+    # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight)
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 6
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["hrt"] % 4 == 0  # a = 0..3
 
@@ -370,7 +370,6 @@ def test_a_finished_run_whose_scenario_changed_since_is_not_taken_as_finished(tm
     a one-line error naming the fields (a stale run would otherwise enter the table)."""
     from pydrake.common.yaml import yaml_dump_typed
 
-    from nbvs_drake.config import load_scenario
     from nbvs_drake.experiments.runner import scenario_drift
     y = tmp_path / "tiny.yaml"
     y.write_text(TINY.replace("[1, 2]", "[1]"))
@@ -528,3 +527,21 @@ def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
                      "from there (`--table-only` writes their table)"], err
     assert "Traceback" not in err
     assert list(_snapshot(runs)) == ["0.3_s1"]
+
+
+@pytest.mark.parametrize("experiment, scenario, levels, extra", [
+    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_sight"}, []),
+    ("clutter", "cluttered_room_nbvs", {"utility": "EU", "planner": "nbvs_sight"},
+     ["scene.object.kind=bunny", "scene.object.size=-1"]),
+])
+def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scenario, levels, extra):
+    """`nbvs reconstruct --scenario teapot_eu_mu_nbvs` (or cluttered_room_nbvs) runs this
+    project's planner under noise with the settings the experiments measured: the resolved
+    scenario equals the level's run of the same seed, field by field."""
+    run = next(r for r in expand(resolve(load_definition(experiment)))
+               if r.seed == 3 and all(r.levels[k] == v for k, v in levels.items()))
+    measured = load_scenario(run.scenario, seed=run.seed, settings=run.overrides)
+    builtin = load_scenario(scenario, seed=3, settings=extra)
+    measured.name = builtin.name
+    assert measured == builtin
+    assert builtin.mission.landmark_occlusion and builtin.mission.verify_views

@@ -433,24 +433,6 @@ def test_a_registered_frame_joins_the_registration_model_only_with_merge_frames(
     assert len(loc._mem_of(lctx).model.points) > after_frame
 
 
-@pytest.mark.parametrize("threshold", [0.3, 1.0])
-def test_a_frame_below_frame_merge_min_fitness_corrects_the_belief_but_stays_out_of_the_model(  # noqa: F811
-        renderer, threshold):
-    """mission.frame_merge_min_fitness: a registered localisation frame joins the
-    registration model only at that fitness or above; below it the frame still corrects the
-    belief, and the sensing scan after it joins the model as always."""
-    loc, mapper, ctx, b, scan, before = _a_frame_then_its_correction(renderer, frame_merge_min_fitness=threshold)
-    lctx = loc.GetMyContextFromRoot(ctx)
-    fit = loc._mem_of(lctx).frames[-1]["icp"]["fitness"]
-    assert 0.3 <= fit < 1.0  # so one threshold merges the frame and the other does not
-    assert not np.array_equal(b.state, b.dead_reckoned)  # registered, corrected either way
-    after_frame = len(loc._mem_of(lctx).model.points)
-    assert (after_frame > before) == (threshold <= fit)
-    scan()
-    assert loc.GetOutputPort("belief").Eval(lctx).check == ""
-    assert len(loc._mem_of(lctx).model.points) > after_frame
-
-
 def _a_frame_then_its_correction(renderer, **mission):  # noqa: F811
     """Verified views with the `mission` settings: the view plan's frame registers (the object
     in view) and asks for a correction (its target is beside where the plan ended). Returns

@@ -192,7 +192,7 @@ class Localisation(LeafSystem):
                                      _recoveries(mem.frames, self.sc.mission.leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
-        if integrate and (not check or self._merges(icp)):
+        if integrate and (not check or (icp.applied and self.sc.mission.merge_frames)):
             model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
@@ -209,12 +209,6 @@ class Localisation(LeafSystem):
         scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info, X_WC)
         belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
         return scan, belief, model, ()
-
-    def _merges(self, icp) -> bool:
-        """Whether a registered localisation frame joins the registration model
-        (mission.merge_frames, mission.frame_merge_min_fitness)."""
-        mi = self.sc.mission
-        return bool(icp is not None and icp.applied and mi.merge_frames and icp.fitness >= mi.frame_merge_min_fitness)
 
     def _refines(self, tau: ControlSequence, mem) -> bool:
         """mission.refine_scan_registration: this scan ends a correction path of verified views."""

@@ -23,13 +23,15 @@ def _only(specs: list[str]) -> dict:
 
 def _cmd_reconstruct(args):
     from .api import reconstruct
-    if args.quiet:  # Drake's INFO lines (context parallelism, the replay's own Meshcat) too
-        import logging
+    # not for the user, quiet or not: Drake's INFO lines (context parallelism, once per plan's
+    # collision checker; the replay's own Meshcat) and numba's note that it falls back from an
+    # old TBB to another threading layer
+    import logging
+    import warnings
 
-        import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
-        logging.getLogger("drake").setLevel(logging.WARNING)
-        import warnings  # numba's note that it falls back from an old TBB to another threading layer
-        warnings.filterwarnings("ignore", message="The TBB threading layer requires")
+    import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
+    logging.getLogger("drake").setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message="The TBB threading layer requires")
     meshcat = None
     if args.meshcat:
         from pydrake.geometry import Meshcat, MeshcatParams

@@ -152,3 +152,17 @@ def test_paths_users_take_end_in_one_line(tmp_path, capsys):
     assert main(["experiment", "objects", "--quick", "--records", str(f), "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"nbvs: error: the records folder {f}/objects_quick cannot be written")
+
+
+def test_a_verbose_run_prints_its_scans_and_no_library_chatter(tmp_path):
+    """`nbvs reconstruct` without --quiet: one line per scan on stdout, and neither Drake's
+    INFO lines (one per plan's collision checker) nor numba's threading-layer note."""
+    import subprocess
+    import sys
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "reconstruct", "--out", str(out),
+                        "--set", "mission.max_scans=2", "--set", "planner.n_candidates=300",
+                        "--set", "scene.gt_points=3000"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert [ln.split()[1] for ln in p.stdout.splitlines() if ln.startswith("scan ")] == ["1", "2"]
+    assert "INFO:drake" not in p.stderr and "TBB" not in p.stderr, p.stderr[-2000:]

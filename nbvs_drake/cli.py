@@ -22,7 +22,6 @@ def _only(specs: list[str]) -> dict:
 
 
 def _cmd_reconstruct(args):
-    from .api import reconstruct
     # not for the user, quiet or not: Drake's INFO lines (context parallelism, once per plan's
     # collision checker; the replay's own Meshcat) and numba's note that it falls back from an
     # old TBB to another threading layer
@@ -30,6 +29,8 @@ def _cmd_reconstruct(args):
     import warnings
 
     import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
+
+    from .api import reconstruct
     logging.getLogger("drake").setLevel(logging.WARNING)
     warnings.filterwarnings("ignore", message="The TBB threading layer requires")
     meshcat = None

@@ -71,7 +71,8 @@ def test_scenario_by_name_path_or_neither(tmp_path, monkeypatch):
             resources.scenario_path(bad)
         msg = str(e.value)
         assert "\n" not in msg and msg.startswith(f"scenario file not found: {bad}")
-        assert "built-in: cluttered_room, default, teapot_du, teapot_du_mu, teapot_eu_mu" in msg
+        assert "built-in: cluttered_room, cluttered_room_nbvs, default, teapot_du, teapot_du_mu, teapot_eu_mu, " \
+            "teapot_eu_mu_nbvs" in msg
 
 
 def test_relative_mesh_paths_resolve_against_the_scenario_folder(tmp_path, monkeypatch):
@@ -236,7 +237,8 @@ print(json.dumps({"file": nbvs_drake.__file__, "models": str(resources.models_di
     assert got["names"] == list(resources.builtin_scenarios())
     assert got["base_dir"] == str(v["site"] / "nbvs_drake" / "diagrams") and got["object_points"] > 100
     bad = _run(v, v["bin"] / "nbvs", "reconstruct", "--scenario", "teapot_eu", check=False)
-    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "built-in: cluttered_room, default" in bad.stderr
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1
+    assert "built-in: cluttered_room, cluttered_room_nbvs, default" in bad.stderr
     assert not (v["cwd"] / "results").exists()
 
 

@@ -136,6 +136,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
         builder.Connect(kplant.GetOutputPort("state"), rec.GetInputPort("true_state"))
         builder.Connect(ctrl.GetOutputPort("status"), rec.GetInputPort("controller_status"))
         builder.Connect(monitor.GetOutputPort("counts"), rec.GetInputPort("collisions"))
+        builder.Connect(loc.GetOutputPort("belief"), rec.GetInputPort("belief"))
         systems["recorder"] = rec
     if meshcat is not None:  # live view (nbvs reconstruct --meshcat)
         from .systems.meshcat_map_view import add_meshcat_views

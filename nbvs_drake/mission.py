@@ -54,6 +54,14 @@ def pose_errors(records: list[dict]) -> dict:
     if reg:
         out["last_registered_m"] = round(float(c[reg[-1], 0]), 5)
         out["last_registered_rad"] = round(float(c[reg[-1], 1]), 5)
+    # the localisation frames that registered (mission.verify_views): the corrected belief's
+    # error after each, read from the true state at the frame
+    fe = np.array([f["true_error"] for r in records for f in r["scan"].get("frames") or []
+                   if "true_error" in f and (f.get("icp") or {}).get("applied")]).reshape(-1, 2)
+    if len(fe):
+        out["frames_registered"] = len(fe)
+        out["frames_worst_m"] = round(float(fe[:, 0].max()), 5)
+        out["frames_worst_rad"] = round(float(fe[:, 1].max()), 5)
     return out
 
 

@@ -12,7 +12,8 @@ from pydrake.systems.framework import LeafSystem
 
 from ..evaluation import coverage, plan_prediction, scan_outcome
 from ..mapping.occupancy import OccupancyMap
-from .messages import ControllerStatus, PlanReport, ScanReport
+from ..pose import state_error
+from .messages import Belief, ControllerStatus, PlanReport, ScanReport
 
 
 class IterationLog:
@@ -55,6 +56,9 @@ class MissionRecorder(LeafSystem):
       - collisions (3): [collided trajectories, executed trajectories, in collision now]
       - controller_status (3): `ControllerStatus`; the true state is sampled while a plan
         executes.
+      - belief (abstract Belief): the localisation's belief; at each localisation frame
+        (mission.verify_views) the true state is read, and each of the iteration's frames
+        gets `true_error` [m, rad], the corrected belief's error after that frame.
     Output ports: none (writes files).
     """
 
@@ -69,7 +73,10 @@ class MissionRecorder(LeafSystem):
         self._true = self.DeclareVectorInputPort("true_state", 8)
         self._coll = self.DeclareVectorInputPort("collisions", 3)
         self._status = self.DeclareVectorInputPort("controller_status", ControllerStatus.SIZE)
+        self._belief = self.DeclareAbstractInputPort("belief", AbstractValue.Make(Belief.exact(np.zeros(8))))
         self.DeclarePeriodicPublishEvent(dt, 0.0, self._publish)
+        self._frame_seen = 0
+        self._frame_errors: list[list[float]] = []
         self._t_last = time.perf_counter()
         self.maps: list[OccupancyMap] = []
         self._path: list[list[float]] = []
@@ -85,10 +92,27 @@ class MissionRecorder(LeafSystem):
         when a collision stops the run, the colliding trajectory up to the collision."""
         return self._path[::2] + self._path[-1:] if self._path else []
 
+    def _with_frame_errors(self, info: dict) -> dict:
+        """The scan report, each of its localisation frames with its `true_error` [m, rad]
+        (the frames since the last sensing scan, in order)."""
+        out = dict(info)
+        frames = info.get("frames")
+        if frames:
+            errs = self._frame_errors[-len(frames):]
+            out["frames"] = [dict(f, true_error=e) for f, e in zip(frames, errs)] + list(frames[len(errs):])
+        self._frame_errors = []
+        return out
+
     def _publish(self, context):
         # moving: sample the executed path (a sink's side effect, as the log)
         if not ControllerStatus.of(self._status.Eval(context)).idle:
             self._path.append(self._r(self._true.Eval(context)))
+        belief: Belief = self._belief.Eval(context)
+        if belief.frame > self._frame_seen:  # a registration ran: a localisation frame's error
+            self._frame_seen = belief.frame
+            if belief.check:
+                err = state_error(self._true.Eval(context), belief.state)
+                self._frame_errors.append([round(err[0], 6), round(err[1], 6)])
         report: PlanReport = self._plan.Eval(context)
         k = report.scan
         if k <= self.written():
@@ -108,7 +132,7 @@ class MissionRecorder(LeafSystem):
             "unknown_voxels": counts["unknown"], "occupied_voxels": counts["occupied"],
             "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
             "object_points": int(len(omap.object_points)),
-            "scan": {key: v for key, v in scan.info.items()},
+            "scan": self._with_frame_errors(scan.info),
             "plan": {key: v for key, v in report.to_json().items()
                      if key not in ("scan", "believed_state", "corrected_state")},
             "true_state": [round(float(v), 6) for v in self._true.Eval(context)],

@@ -21,20 +21,9 @@ def _only(specs: list[str]) -> dict:
     return out
 
 
-def quiet_library_logs():
-    """Silences what is not for the user, quiet or not: Drake's INFO lines (context
-    parallelism, once per plan's collision checker; the replay's own Meshcat) and numba's note
-    that it falls back from an old TBB to another threading layer."""
-    import logging
-    import warnings
-
-    import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
-    logging.getLogger("drake").setLevel(logging.WARNING)
-    warnings.filterwarnings("ignore", message="The TBB threading layer requires")
-
-
 def _cmd_reconstruct(args):
     from .api import reconstruct
+    from .errors import quiet_library_logs
     quiet_library_logs()
     meshcat = None
     if args.meshcat:

@@ -1,4 +1,5 @@
-"""User-facing errors: each one names the problem in one line (the CLI prints it without a traceback)."""
+"""User-facing errors: each one names the problem in one line (the CLI prints it without a
+traceback); and `quiet_library_logs`, which keeps the libraries' notes off the user's screen."""
 
 
 class NbvsError(Exception):
@@ -56,3 +57,15 @@ class InterruptGuard:
     def was_interrupt(self, exc: BaseException) -> bool:
         """Whether `exc` is Ctrl-C, or what Ctrl-C turned into."""
         return isinstance(exc, KeyboardInterrupt) or self.interrupted
+
+
+def quiet_library_logs():
+    """Silences what is not for the user, quiet or not: Drake's INFO lines (context
+    parallelism, once per plan's collision checker; the replay's own Meshcat) and numba's note
+    that it falls back from an old TBB to another threading layer."""
+    import logging
+    import warnings
+
+    import pydrake  # noqa: F401  (it sets the "drake" logger's level when first imported)
+    logging.getLogger("drake").setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message="The TBB threading layer requires")

@@ -25,7 +25,7 @@ def warm_run() -> float:
 
 
 if __name__ == "__main__":
-    from .cli import quiet_library_logs
+    from .errors import quiet_library_logs
     quiet_library_logs()
     print(f"warmup: the motion planner's numba kernels compiled in {warm_kernels():.1f} s", flush=True)
     print(f"warmup: a two-scan run (the other kernels, the default object's ceiling) in {warm_run():.1f} s")

@@ -97,9 +97,10 @@ class MissionRecorder(LeafSystem):
         (the frames since the last sensing scan, in order)."""
         out = dict(info)
         frames = info.get("frames")
-        if frames:
+        if frames:  # (were one missed, the earliest frames go without)
             errs = self._frame_errors[-len(frames):]
-            out["frames"] = [dict(f, true_error=e) for f, e in zip(frames, errs)] + list(frames[len(errs):])
+            pad = len(frames) - len(errs)
+            out["frames"] = list(frames[:pad]) + [dict(f, true_error=e) for f, e in zip(frames[pad:], errs)]
         self._frame_errors = []
         return out
 

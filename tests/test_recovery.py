@@ -99,6 +99,33 @@ def test_recovery_geometry(kin):
     assert s[0] > 0.05 and s[1] == 0.0
 
 
+def test_a_landmark_whose_surface_faces_away_is_not_in_view(kin):  # noqa: F811
+    """mission.landmark_facing: landmarks with normals (L, 6) count only where the surface
+    faces the camera. The object's side seen so far (normals towards the start) is in view
+    from the start; seen from the far side of the table, the same points are the back of the
+    object, and only the landmarks facing that camera count."""
+    sc = load_scenario("teapot_eu_mu")
+    q = np.array([-1.3, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0])  # at -x, looking at the table
+    far = q.copy()
+    far[0], far[2] = 1.3, np.pi  # at +x, looking back at it
+    P = np.array([[-0.05, y, z] for y in (-0.05, 0.0, 0.05) for z in (0.55, 0.6, 0.65)])
+    toward_start = np.tile([-1.0, 0.0, 0.0], (len(P), 1))
+    obj = np.concatenate([P, toward_start], axis=1)
+    plain = landmarks_in_view(kin, sc, np.stack([q, far]), P)
+    facing = landmarks_in_view(kin, sc, np.stack([q, far]), obj)
+    assert plain[0] == 1.0 and plain[1] == 1.0  # in both fields of view
+    assert facing[0] == 1.0 and facing[1] == 0.0  # but their surface faces the start
+    # zero normals always face; with the environment, registration_landmarks gives (L, 6)
+    assert landmarks_in_view(kin, sc, far[None], np.concatenate([P, 0 * P], axis=1))[0] == 1.0
+    marks = registration_landmarks(sc, P, np.random.default_rng(0), object_normals=toward_start)
+    assert marks.shape[1] == 6 and np.allclose(np.linalg.norm(marks[:, 3:], axis=1), 1.0)
+    # the table top's underside faces down: never in view from above
+    under = marks[marks[:, 5] < -0.5]
+    assert len(under) and landmarks_in_view(kin, sc, q[None], under)[0] == 0.0
+    s = relocalisation_scores(kin, sc, far[None], np.diag([1e-4, 1e-4, 1e-4]), obj, np.random.default_rng(1))
+    assert s[0] == 0.0
+
+
 def _seen_through_reference(solids, origin, P, tol):
     """Slab tests in numpy, box by box: the reference for KnownSolids' kernel."""
     from nbvs_drake.pose import rot_z

@@ -102,16 +102,24 @@ def landmarks_in_view(kin: RobotKinematics, sc: Scenario, states: np.ndarray, la
     """Share of the landmark points (L, 3) inside each state's field of view (shrunk by
     `margin`) and depth range, (N,). With `solids` (registration.KnownSolids,
     mission.landmark_occlusion) a landmark hidden behind a known solid from the camera does
-    not count; else occlusion is not modelled."""
+    not count; else occlusion is not modelled. Landmarks (L, 6) carry their surface normals
+    (`registration_landmarks` with normals, mission.landmark_facing): one whose surface faces
+    away from the camera (the far side of the object seen so far, a face of the table turned
+    away) does not count either, as the camera would see the surface in front of it instead;
+    a zero normal always faces."""
+    landmarks = np.asarray(landmarks, float)
+    pts = landmarks[:, :3]
     s = resolve_sensor(sc.sensor)
     tx, ty = margin * math.tan(math.radians(s.fov_x_deg) / 2), margin * math.tan(math.radians(s.fov_y_deg) / 2)
     X = kin.camera_poses(np.atleast_2d(states))
     R, o = X[:, :3, :3], X[:, :3, 3]
-    P = np.einsum("nji,nlj->nli", R, landmarks[None] - o[:, None])  # camera frame, (N, L, 3)
+    P = np.einsum("nji,nlj->nli", R, pts[None] - o[:, None])  # camera frame, (N, L, 3)
     z = P[..., 2]
     ok = (z > s.z_near) & (z < min(s.z_far, 3.0)) & (np.abs(P[..., 0]) < tx * z) & (np.abs(P[..., 1]) < ty * z)
+    if landmarks.shape[1] == 6:  # back faces: the normal points away from the camera
+        ok &= (o @ landmarks[:, 3:].T - np.sum(pts * landmarks[:, 3:], axis=1)[None]) >= 0.0
     if solids is not None:
-        ok &= ~solids.blocked(o, landmarks, ok)
+        ok &= ~solids.blocked(o, pts, ok)
     return ok.mean(axis=1)
 
 
@@ -146,14 +154,28 @@ def landmark_solids(sc: Scenario):
 
 
 def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.random.Generator,
-                           n_object: int = 300, n_env: int = 300) -> np.ndarray:
+                           n_object: int = 300, n_env: int = 300, object_normals=None) -> np.ndarray:
     """What a scan registers against: points of the object seen so far and of the known
-    environment's surfaces in the registration region (registration.environment_model)."""
+    environment's surfaces in the registration region (registration.environment_model), (L, 3);
+    given the object points' normals (`OccupancyMap.object_normals`, turned towards the camera
+    that saw each point), (L, 6): each point with its surface normal (the environment's exact
+    ones), for `landmarks_in_view`'s back-face test."""
     from ..registration import RegistrationConfig, environment_model
-    env = environment_model(sc, RegistrationConfig()).points.astype(float)
+    model = environment_model(sc, RegistrationConfig())
+    env = np.concatenate([model.points, model.normals], axis=1).astype(float)
     obj = np.asarray(object_points, float).reshape(-1, 3)
+    if object_normals is not None:
+        obj = np.concatenate([obj, np.asarray(object_normals, float).reshape(-1, 3)], axis=1)
+    else:
+        env = env[:, :3]
     pick = lambda P, k: P[rng.choice(len(P), k, replace=False)] if len(P) > k else P  # noqa: E731
     return np.concatenate([pick(obj, n_object), pick(env, n_env)])
+
+
+def landmark_normals(sc: Scenario, omap):
+    """The object points' normals when landmarks carry them (mission.landmark_facing), else
+    None: `registration_landmarks`' object_normals."""
+    return omap.object_normals if sc.mission.landmark_facing else None
 
 
 class Recovery:
@@ -252,7 +274,8 @@ class Recovery:
         cand = cand[obs.free(cand)]
         if not len(cand):
             return PlanResult("no_path")
-        marks = registration_landmarks(self.sc, omap.object_points, rng)
+        marks = registration_landmarks(self.sc, omap.object_points, rng,
+                                       object_normals=landmark_normals(self.sc, omap))
         score = relocalisation_scores(self.kin, self.sc, cand, cov, marks, rng, solids=self._solids)
         for i in np.argsort(-score, kind="stable")[:20]:
             found = self._direct(q_now, cand[i], obs, cov)

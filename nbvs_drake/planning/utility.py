@@ -189,11 +189,12 @@ class ExpectedUtilityScore:
         frame that finds the error. A rollout counts with g times the share of the planned
         view's registration landmarks (the object seen so far, the known environment) that
         stay in its field of view (at most 1): a drift that loses them costs a re-localisation."""
-        from .recovery import landmark_solids, landmarks_in_view, registration_landmarks
+        from .recovery import landmark_normals, landmark_solids, landmarks_in_view, registration_landmarks
         key = request.omap.scan_count
         if getattr(self, "_marks_key", None) != key:
             self._marks = registration_landmarks(self.sc, request.omap.object_points,
-                                                 np.random.default_rng([self.sc.seed, 19, key]))
+                                                 np.random.default_rng([self.sc.seed, 19, key]),
+                                                 object_normals=landmark_normals(self.sc, request.omap))
             self._marks_key = key
             self._solids = landmark_solids(self.sc)
         kin, marks, solids = self.evaluator.kin, self._marks, self._solids

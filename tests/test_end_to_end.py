@@ -102,7 +102,7 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"].records) == s["scans"]
     assert ns["runs"]["small"].summary == json.loads((out / "summary.json").read_text())  # RunResult.load
     assert ns["table"].cell("teapot/DU/paper")["metrics"]["coverage"]["mean"] == pytest.approx(100 * s["coverage"])
-    assert [len(v) for v in ns["exp_runs"].values()] == [1] + [0] * 44  # 3 objects x 3 approaches x 5 planners
+    assert [len(v) for v in ns["exp_runs"].values()] == [1] + [0] * 53  # 3 objects x 3 approaches x 6 planners
 
 
 def test_same_seed_same_summary(small_run, tmp_path):

@@ -86,12 +86,12 @@ def test_definition_expands_to_its_runs(name):
 def test_full_sizes_follow_the_papers():
     size = {n: len(expand(resolve(load_definition(n)))) for n in NAMES}
     # Table 5: three objects, three approaches, ten runs; with the paper's settings and this
-    # project's planner (nbvs, nbvs_refine, nbvs_fine, nbvs_sight)
-    assert size["motion_noise"] == 3 * 3 * 10 * 5
+    # project's planner (nbvs, nbvs_refine, nbvs_fine, nbvs_sight, nbvs_face)
+    assert size["motion_noise"] == 3 * 3 * 10 * 6
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
     # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
-    # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight)
-    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 6
+    # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_face)
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 7
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["hrt"] % 4 == 0  # a = 0..3
 
@@ -530,8 +530,8 @@ def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
 
 
 @pytest.mark.parametrize("experiment, scenario, levels, extra", [
-    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_sight"}, []),
-    ("clutter", "cluttered_room_nbvs", {"utility": "EU", "planner": "nbvs_sight"},
+    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_face"}, []),
+    ("clutter", "cluttered_room_nbvs", {"utility": "EU", "planner": "nbvs_face"},
      ["scene.object.kind=bunny", "scene.object.size=-1"]),
 ])
 def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scenario, levels, extra):
@@ -544,4 +544,4 @@ def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scena
     builtin = load_scenario(scenario, seed=3, settings=extra)
     measured.name = builtin.name
     assert measured == builtin
-    assert builtin.mission.landmark_occlusion and builtin.mission.verify_views
+    assert builtin.mission.landmark_occlusion and builtin.mission.landmark_facing and builtin.mission.verify_views

@@ -1,3 +1,5 @@
+import signal
+
 import numpy as np
 import pytest
 
@@ -72,3 +74,10 @@ def near_contacts(model, q, free, n_pairs=150, steps=24, both=False):
         ok = drake_free(model, mid)
         a[ok], b[~ok] = mid[ok], mid[~ok]
     return np.concatenate([a, b]) if both else a
+
+
+def ctrl_c_as_in_a_terminal():
+    """A subprocess' preexec_fn: SIGINT's default action in the child, as a command started in
+    a terminal has it (a test suite started in the background, `make test &`, hands SIGINT on
+    ignored, and Ctrl-C tests would see the child run on)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import ctrl_c_as_in_a_terminal
 
 from nbvs_drake.cli import main
 from nbvs_drake.config import load_scenario
@@ -511,7 +512,7 @@ def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
     runs = out / "tiny" / "runs"
     proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
                              "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=ctrl_c_as_in_a_terminal)
     deadline = time.time() + 300
     while time.time() < deadline:
         partial = list(runs.glob("*.partial-*")) if runs.exists() else []

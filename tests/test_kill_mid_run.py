@@ -7,6 +7,8 @@ import subprocess
 import sys
 import time
 
+from conftest import ctrl_c_as_in_a_terminal
+
 
 def test_killed_run_keeps_every_finished_iteration(tmp_path):
     y = tmp_path / "s.yaml"
@@ -44,7 +46,7 @@ def test_ctrl_c_says_where_the_finished_iterations_are(tmp_path):
     out = tmp_path / "o"
     proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "reconstruct", "--scenario", str(y),
                              "--out", str(out), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True)
+                            text=True, preexec_fn=ctrl_c_as_in_a_terminal)
     log = out / "iterations.jsonl"
     deadline = time.time() + 300
     while time.time() < deadline and not (log.exists() and log.read_text().count("\n") >= 1):

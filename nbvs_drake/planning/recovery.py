@@ -162,12 +162,11 @@ def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.rand
     ones), for `landmarks_in_view`'s back-face test."""
     from ..registration import RegistrationConfig, environment_model
     model = environment_model(sc, RegistrationConfig())
-    env = np.concatenate([model.points, model.normals], axis=1).astype(float)
+    env = model.points.astype(float)
     obj = np.asarray(object_points, float).reshape(-1, 3)
-    if object_normals is not None:
+    if object_normals is not None:  # each point with its normal
+        env = np.concatenate([env, model.normals], axis=1)
         obj = np.concatenate([obj, np.asarray(object_normals, float).reshape(-1, 3)], axis=1)
-    else:
-        env = env[:, :3]
     pick = lambda P, k: P[rng.choice(len(P), k, replace=False)] if len(P) > k else P  # noqa: E731
     return np.concatenate([pick(obj, n_object), pick(env, n_env)])
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import load_scenario
+from .config import Deterministic, Expected, Ort, Roadmap, RrtExtExt, load_scenario
 from .mapping import view_metrics as K
 from .mapping.occupancy import OccupancyMap
 from .planning import PlanRequest, make_planner
@@ -49,7 +49,7 @@ def _bench_maps(sc, kin, r, n_scans: int, rng) -> tuple[list, list]:
 def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000, seed: int = 0,
                      n_maps: int = 4, coarse_stride: int = 2, hrt_per_trial: int = 200) -> dict:
     """The view evaluator at full resolution (one ray per pixel) on the default scene's maps
-    after 1..n_maps scans: the coarse-to-fine evaluator (planner.coarse_stride: every view at
+    after 1..n_maps scans: the coarse-to-fine evaluator (planner.coarse_stride(): every view at
     `coarse_stride`, the best top_k of the ranking again at full resolution) against
     every view at full resolution (the baseline kernel, today's exact answers) in the same run,
     on the same `trials` sets of `per_trial` candidate views (spread over the maps), ranked by
@@ -77,10 +77,10 @@ def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000
     sc.planner.n_candidates = max(n_views, per_trial)
     sampler = StateSampler(sc, kin)
     sets = [sampler.generate(np.random.default_rng([seed, k]))[0][:per_trial] for k in range(trials)]
-    sc.planner.ray_stride = 1
+    sc.planner.evaluator.stride = 1
     base = ViewEvaluator(kin, sc)
-    sc.planner.coarse_stride = coarse_stride
-    sc.planner.refine_views = sc.planner.top_k
+    sc.planner.evaluator.coarse_stride = coarse_stride
+    sc.planner.evaluator.refine = sc.planner.top_k
     new = ViewEvaluator(kin, sc)
     threads = numba.get_num_threads()
 
@@ -147,7 +147,7 @@ def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000
         "grid": list(omap.spec.dims),
         "threads": threads,
         "evaluator": {"kind": "coarse_to_fine", "coarse_stride": coarse_stride,
-                      "refine_views": sc.planner.refine_views, "views_per_trial": per_trial, "trials": trials,
+                      "refine_views": sc.planner.refine_views(), "views_per_trial": per_trial, "trials": trials,
                       "metric": sc.planner.metric},
         "ms_per_view_1core_full_res": 1e3 * t1_new,
         "views_per_s_full_res": n_total / t_new,
@@ -224,17 +224,17 @@ def bench_planning(seed: int = 0, clutter: bool = True) -> dict:
     out["du_plan_s"], res = timed(make_planner(du, kin, cm))
     out["du_stages"], out["du_times_s"] = res.stages, res.times
     eu = copy.deepcopy(du)
-    eu.planner.utility, eu.planner.eu_samples = "eu", 500
+    eu.planner.utility = Expected(samples=500)
     eu.noise.sigma_v, eu.noise.sigma_w = 0.00165, 0.28  # Table 4
     out["eu_plan_s_k500"], res = timed(make_planner(eu, kin, cm))
     out["eu_times_s"], out["eu_feasible"] = res.times, res.stages.get("eu_feasible")
     ort = copy.deepcopy(sc)
-    ort.planner.strategy, ort.planner.ort_vertices = "ort", 10_000
+    ort.planner.strategy = Ort(vertices=10_000)
     out["ort_plan_s"], res = timed(make_planner(ort, kin, cm))
     out["ort_times_s"], out["ort_status"] = res.times, res.status
-    # the batched growth (planner.ort_batch) against one extension at a time, same tree size
+    # the batched growth (planner.strategy.batch) against one extension at a time, same tree size
     serial = copy.deepcopy(ort)
-    serial.planner.ort_batch = 1
+    serial.planner.strategy.batch = 1
     out["ort_serial_plan_s"], res = timed(make_planner(serial, kin, cm))
     out["ort_serial_times_s"] = res.times
     out["ort_batched_tree_speedup"] = res.times["tree_s"] / out["ort_times_s"]["tree_s"]
@@ -279,8 +279,7 @@ def bench_clutter(seed: int = 1, rrt_max_nodes: int = 10_000, eu_samples: int = 
     goals every planner reached, collision checks, their seconds and Drake's share."""
     import copy
     base = load_scenario("cluttered_room", settings=["scene.object.kind=bunny", "scene.object.size=-1",
-                                                     f"planner.rrt_max_nodes={rrt_max_nodes}",
-                                                     f"planner.eu_samples={eu_samples}"])
+                                                     f"planner.utility.samples={eu_samples}"])
     kin = RobotKinematics(base.robot.urdf)
     states = clutter_scan_states(base, kin, CollisionModel(base, kin))
     maps = {}
@@ -298,7 +297,8 @@ def bench_clutter(seed: int = 1, rrt_max_nodes: int = 10_000, eu_samples: int = 
         res = {}
         for utility in ("du", "eu"):
             sc = copy.deepcopy(base)
-            sc.planner.motion_planner, sc.planner.utility = mp, utility
+            sc.planner.motion_planner = Roadmap() if mp == "roadmap" else RrtExtExt(max_nodes=rrt_max_nodes)
+            sc.planner.utility = Expected(samples=eu_samples) if utility == "eu" else Deterministic()
             cm = CollisionModel(sc, kin)
             planner = make_planner(sc, kin, cm, bulk_checks=bulk_checks)
             motion, plan, reached, tried = [], [], 0, 0
@@ -447,7 +447,7 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
                                     "speedup": t_drake / t_fast, "free": float(verdict.mean()),
                                     "proved_free": float(proved.mean())}
     sc = load_scenario()
-    sc.planner.ort_vertices = ort_vertices
+    sc.planner.strategy.vertices = ort_vertices
     times, trees, visits = {}, {}, {}
     # Drake alone; the certificate with the Python growth (rrt.extend_batch) and the targets'
     # director-ray test in numpy, as before the bulk kernels; the numba growth

@@ -54,7 +54,7 @@ def candidate_gains(sc: Scenario, views=(), n_best: int = 60, n_random: int = 60
             ev = ViewEvaluator(kin, sc)
             ev.near_surface_model = model
             if ev.coverage_radius <= 0:
-                ev.coverage_radius = sc.planner.coverage_radius
+                ev.coverage_radius = sc.planner.coverage.radius
             preds[model] = ev.evaluate(omap, cand)[:, K.M_COVER_GAIN]
         # the n_best of each model, then n_random of the others
         best = list(dict.fromkeys(np.concatenate([np.argsort(-preds[m], kind="stable")[:n_best]

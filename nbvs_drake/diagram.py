@@ -99,7 +99,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     loc = builder.AddNamedSystem("localisation", Localisation(sc, kin, q0, dt))
     mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
     recovery = None
-    if sc.mission.verify_views:
+    if sc.localisation.verified_views is not None:
         from .planning import make_recovery
         recovery = make_recovery(sc, kin, planner_impl)
     planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0, recovery))

@@ -110,7 +110,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     md = build_mission_diagram(sc, out / "scene", log, meshcat=meshcat)
     if verbose:
         print(f"nbvs: scenario {sc.name!r}, seed {sc.seed}, object {sc.scene.object.kind}, "
-              f"planner {sc.planner.strategy}, writing to {out}", flush=True)
+              f"planner {sc.planner.strategy_word()}, writing to {out}", flush=True)
     diagram = md.diagram
     sim = Simulator(diagram)
     ctx = sim.get_mutable_context()
@@ -185,7 +185,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     summary = {
         "scenario": sc.name,
         "seed": sc.seed,
-        "planner": sc.planner.strategy,
+        "planner": sc.planner.strategy_word(),
         "coverage": records[-1]["coverage"] if records else 0.0,
         "coverage_5mm": records[-1]["coverage_5mm"] if records else 0.0,
         "coverage_voxel": records[-1]["coverage_voxel"] if records else 0.0,
@@ -207,9 +207,9 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
         "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
         "object_points": int(len(omap.object_points)),
-        "relocalization": sc.mission.relocalization,
+        "relocalization": sc.localisation.method,
         "pose_error": pose_errors(records),
-        **(recovery_counts(records) if sc.mission.verify_views else {}),
+        **(recovery_counts(records) if sc.localisation.verified_views is not None else {}),
         **prediction_summary(records),
         "sim_time_s": round(ctx.get_time(), 3),
         "times_s": {

@@ -99,7 +99,7 @@ def control_sigmas(noise: NoiseConfig, controls: np.ndarray) -> np.ndarray:
     command is exactly 0, which is executed exactly."""
     controls = np.asarray(controls, float)
     sig = np.broadcast_to(noise_sigmas(noise), controls.shape)
-    return sig.copy() if noise.perturb_zero_commands else np.where(controls != 0.0, sig, 0.0)
+    return np.where(controls != 0.0, sig, 0.0)
 
 
 def sample_control_noise(rng: np.random.Generator, noise: NoiseConfig, controls: np.ndarray,
@@ -136,8 +136,8 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
 
 def plans_in_legs(sc) -> bool:
     """Whether plans run in legs: mission.legs with verified views under motion noise."""
-    mi = sc.mission
-    return bool(mi.legs and mi.verify_views and np.any(noise_sigmas(sc.noise) > 0))
+    vv = sc.localisation.verified_views
+    return bool(vv is not None and vv.legs is not None and np.any(noise_sigmas(sc.noise) > 0))
 
 
 def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True) -> list[int]:
@@ -167,7 +167,8 @@ def min_leg_turn(sc) -> int:
     """mission.leg_turns: the shortest turn (in control steps) after which a leg ends: the
     first whose heading spread, sigma_w dt sqrt(n), is more than twice what the frame leaves
     (the registration's heading error and one step of corrective turn); 0 without leg_turns."""
-    if not sc.mission.leg_turns:
+    vv = sc.localisation.verified_views
+    if vv is None or vv.legs is None or not vv.legs.after_turns:
         return 0
     step = sc.noise.sigma_w * sc.robot.control_dt
     if step <= 0:
@@ -317,7 +318,7 @@ def steer(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig, weights=None) -> list
     noise-free Euler model (turns and drives are separate phases; the arm moves at constant
     velocity): 'together' (arm during the base motion), 'arm_first', 'base_first', and 'tuck'
     (arm up, drive, arm down), each with forward and backward driving. With eq. 8's weights
-    (planner.arc_steering) also 'arc' (`steer_arc`) where it applies: first when it is
+    (planner.steering.arcs) also 'arc' (`steer_arc`) where it applies: first when it is
     shorter than 'together', else after it."""
     q0 = np.asarray(q0, float)
     q1 = np.asarray(q1, float)

@@ -177,11 +177,11 @@ def _read_with_open3d(path: Path):
 
 def object_size(o: ObjectConfig) -> float:
     """The longest side (m) the object is scaled to; 0: it is scaled by `scale`."""
-    return OBJECT_KINDS[o.kind]["size"] if o.size == -1 else o.size
+    return o.resolved_size()
 
 
 def object_up(o: ObjectConfig) -> str:
-    return o.up or OBJECT_KINDS[o.kind]["up"]
+    return o.resolved_up()
 
 
 def up_rotation(up: str) -> np.ndarray:
@@ -236,7 +236,7 @@ def build_object(sc: Scenario) -> ObjectMesh:
     if size > 0:
         V *= size / float(np.max(hi - lo))
     else:
-        V *= o.scale
+        V *= 1.0 if o.scale is None else o.scale
     R = object_orientation(o)
     if not np.array_equal(R, np.eye(3)):  # skipped when identity: z-up objects stay bit for bit
         V = V @ R.T

@@ -58,7 +58,7 @@ class RegistrationConfig:
     refine_best: int = 4  #: grid starts refined to the last stage
 
 
-#: mission.fine_registration: the last stage (scan voxel, correspondence distance, m) and the
+#: localisation.fine_stage: the last stage (scan voxel, correspondence distance, m) and the
 #: point-to-plane sigma (m) it sets
 FINE_STAGE = (0.01, 0.008)
 FINE_SIGMA = 0.002
@@ -66,8 +66,8 @@ FINE_SIGMA = 0.002
 
 def registration_config(sc: Scenario) -> RegistrationConfig:
     """The registration's settings for a scenario's mission (residual cap, fine stage)."""
-    cfg = RegistrationConfig(residual_cap=sc.mission.residual_cap())
-    if sc.mission.fine_registration:
+    cfg = RegistrationConfig(residual_cap=sc.localisation.cap())
+    if sc.localisation.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
     return cfg
 

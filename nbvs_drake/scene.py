@@ -82,7 +82,7 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
     obstacle_boxes: (centre, size) pairs added as collision-only boxes (the map's unknown
         and occupied voxels, merged).
     floor_drop: the floor's collision box this much lower (m): a model whose base link is
-        padded by that much against the environment (planner.base_clearance) keeps the base's
+        padded by that much against the environment (planner.obstacles.base_clearance) keeps the base's
         own ground clearance.
     """
     from pydrake.geometry import Box as DBox

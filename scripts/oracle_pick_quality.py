@@ -20,6 +20,7 @@ import tempfile
 
 import numpy as np
 
+from nbvs_drake.config import Oracle
 from nbvs_drake.experiments.definition import expand, load_definition, resolve
 from nbvs_drake.mission import run_mission
 from nbvs_drake.planning import make_planner
@@ -33,7 +34,7 @@ def main(obj: str, seed: int) -> None:
     sc = next(r for r in runs if r.levels == {"object": obj, "planner": "nbv"}).resolve()
     kin = RobotKinematics()
     osc = copy.deepcopy(sc)
-    osc.planner.strategy = "oracle"
+    osc.planner.strategy = Oracle()
     oracle = make_planner(osc, kin)
     centre = 0.5 * (np.asarray(sc.scene.bbox_min) + np.asarray(sc.scene.bbox_max))
     plan, rows = rs.RandomSamplingPlanner.plan, []

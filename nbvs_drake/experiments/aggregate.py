@@ -37,17 +37,29 @@ def read_run(d: Path) -> dict | None:
     f = d / "summary.json"
     if not f.is_file():
         return None
-    import yaml
     summary = json.loads(f.read_text())
     it = d / "iterations.jsonl"
     records = [json.loads(x) for x in it.read_text().splitlines() if x.strip()] if it.is_file() else []
     sc = d / "scenario.yaml"
-    scenario = yaml.safe_load(sc.read_text()) if sc.is_file() else {}
+    scenario = _scenario_settings(sc.read_text()) if sc.is_file() else {}
     run = json.loads((d / "run.json").read_text()) if (d / "run.json").is_file() else {}
     return {"dir": str(d), "summary": summary, "records": records, "scenario": scenario or {}, "run": run}
 
 
+def _scenario_settings(text: str) -> dict:
+    """A run's scenario.yaml (today's schema or the old flat one) as {dotted name: value}
+    (`config.settings_of`); {} when it cannot be read."""
+    from ..config import scenario_from_text, settings_of
+    from ..errors import NbvsError
+    try:
+        return settings_of(scenario_from_text(text, "scenario.yaml"))
+    except NbvsError:
+        return {}
+
+
 def _get(obj, path: str):
+    if isinstance(obj, dict) and path in obj:  # a flat {dotted name: value}
+        return obj[path]
     for part in path.split("."):
         if isinstance(obj, dict) and part in obj:
             obj = obj[part]
@@ -77,7 +89,7 @@ def derived(run: dict) -> dict:
     rho = [x for x in rho if x is not None]
     scans = s.get("scans") or 0
     voxel = _num(_get(sc, "mapper.voxel_size")) or 0.02
-    hrt_a = _num(_get(sc, "planner.hrt_a")) or 0
+    hrt_a = (_num(_get(sc, "planner.evaluator.a")) or 0) if _get(sc, "planner.evaluator") == "Hrt" else 0
     return {
         "plans": len(plans),
         "views_evaluated": views,

@@ -37,7 +37,7 @@ A definition (all keys but `name`, `factors` and `seeds` optional)::
     quick:     # the `--quick` version: fewer seeds and levels, cheaper overrides (applied last)
       seeds: [1, 2]
       levels: {object: [teapot]}          # keep these levels of a factor
-      replace_levels: {k: [{label: "300", set: [planner.ort_vertices=300]}]}  # or other levels
+      replace_levels: {k: [{label: "300", set: [planner.strategy.vertices=300]}]}  # or other levels
       set: [mission.max_scans=2]
     cost: {...}  # measured seconds per run, and on what machine
 """
@@ -52,6 +52,7 @@ import json
 import re
 from pathlib import Path
 
+from ..config import settings_of  # noqa: F401 (re-exported: runner, records)
 from ..errors import NbvsError
 
 DEFINITIONS_DIR = Path(__file__).resolve().parent / "definitions"
@@ -83,20 +84,6 @@ class RunSpec:
         return load_scenario(self.scenario, seed=self.seed, settings=self.overrides)
 
 
-def settings_of(sc) -> dict:
-    """A scenario's fields as {dotted name: value}, base_dir left out (it names the checkout
-    the run was made in, not the run): two runs with equal settings are the same run."""
-    def flat(d, pre=""):
-        out = {}
-        for k, v in d.items():
-            if isinstance(v, dict):
-                out.update(flat(v, f"{pre}{k}."))
-            else:
-                out[pre + k] = v
-        return out
-    out = flat(dc.asdict(sc))
-    out.pop("base_dir", None)
-    return out
 
 
 _LABEL_OK = re.compile(r"[^A-Za-z0-9.+-]+")

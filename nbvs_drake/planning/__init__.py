@@ -25,21 +25,21 @@ def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True, truth_mesh=
     evaluator = ViewEvaluator(kin, sc)
     obstacles = PlanningObstacles(sc, kin, wbox_model)
     motion = MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks)
-    overlap_h = None if p.strategy == "view_sampling" else p.overlap_h
+    overlap_h = None if p.strategy_name() == "ViewSampling" else p.overlap_h
     utility = make_utility(sc, evaluator, motion, overlap_h)
-    if p.strategy in ("view_circle", "random_views"):
+    if p.strategy_name() in ("ViewCircle", "RandomViews"):
         from .baselines import make_baseline
         return make_baseline(sc, kin, sampler, evaluator, obstacles, motion, utility, overlap_h)
-    if p.strategy == "oracle":  # the greedy oracle: it knows the true object (truth_mesh)
+    if p.strategy_name() == "Oracle":  # the greedy oracle: it knows the true object (truth_mesh)
         from ..objects import build_object
         from .oracle import OraclePlanner
         return OraclePlanner(sc, kin, sampler, obstacles, motion, truth_mesh or build_object(sc))
-    if p.strategy == "ort":
+    if p.strategy_name() == "Ort":
         from .ort import ORTPlanner
         return ORTPlanner(sc, sampler, evaluator, obstacles, motion, utility, overlap_h)
     from .random_sampling import RandomSamplingPlanner
     generator = sampler
-    if p.strategy == "view_sampling":
+    if p.strategy_name() == "ViewSampling":
         from .view_sampling import ClusterViewGenerator
         generator = ClusterViewGenerator(sc, kin, sampler)
     return RandomSamplingPlanner(sc, generator, evaluator, obstacles, motion, utility, overlap_h)
@@ -53,7 +53,7 @@ def make_recovery(sc, kin, planner):
         return None
     from .recovery import Recovery
     checker = None
-    if sc.mission.recovery_rollouts > 0:
+    if sc.localisation.verified_views.recovery_rollouts > 0:
         from .utility import ExpectedUtilityScore
         checker = ExpectedUtilityScore(sc, None, planner.motion, None)
     return Recovery(sc, kin, planner.motion, planner.obstacles, checker)

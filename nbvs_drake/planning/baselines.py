@@ -4,7 +4,7 @@ strategy and PlanResult factors as random sampling, so their reports compare one
 
 - `ViewCirclePlanner` (planner.strategy "view_circle"): the fixed view sphere the NBV papers
   compare against (Vasquez-Gomez, Sucar & Murrieta-Cid 2017; Vasquez-Gomez et al. 2018):
-  planner.circle_views views evenly spaced on a horizontal circle around W_box's centre, each
+  planner.strategy.views views evenly spaced on a horizontal circle around W_box's centre, each
   camera aimed at the centre, each turned into a robot state by Drake's InverseKinematics
   (as Santos et al. 2020's views are, planning.view_sampling) and visited in turn.
 - `RandomViewsPlanner` (planner.strategy "random_views"): uniform random views, the first
@@ -95,19 +95,19 @@ class ViewCircle:
 
 def circle_geometry(sc: Scenario) -> tuple[np.ndarray, float, float]:
     """(W_box centre, the circle's horizontal radius, the cameras' height). Automatic radius
-    (planner.circle_range 0): 0.1 m beyond both the distance at which W_box's nearest side
+    (planner.strategy.range 0): 0.1 m beyond both the distance at which W_box's nearest side
     face lies at the sensor's z_near (z_near + the larger half-extent of its footprint) and
     W_box's footprint corners plus 0.15 m for the camera and arm; the default scene and
     SR4000: max(0.4 + 0.4, 0.566 + 0.15) + 0.1 = 0.9 m, so the director ray meets W_box at
-    about 0.5 m, within planner.max_view_distance (1 m). Automatic height (planner.circle_height
+    about 0.5 m, within planner.max_view_distance (1 m). Automatic height (planner.strategy.height
     0): the middle of W_box's upper half (0.82 m in the default scene)."""
     p, s = sc.planner, sc.scene
     bmin, bmax = np.asarray(s.bbox_min, float), np.asarray(s.bbox_max, float)
     centre = 0.5 * (bmin + bmax)
     half = 0.5 * (bmax - bmin)
     z_near = resolve_sensor(sc.sensor).z_near
-    radius = p.circle_range or max(z_near + max(half[0], half[1]), float(np.hypot(half[0], half[1])) + 0.15) + 0.1
-    height = p.circle_height or float(bmin[2] + 0.75 * (bmax[2] - bmin[2]))
+    radius = p.strategy.range or max(z_near + max(half[0], half[1]), float(np.hypot(half[0], half[1])) + 0.15) + 0.1
+    height = p.strategy.height or float(bmin[2] + 0.75 * (bmax[2] - bmin[2]))
     return centre, float(radius), float(height)
 
 
@@ -151,7 +151,7 @@ class ViewCirclePlanner:
         return self._circle
 
     def _build_circle(self) -> ViewCircle:
-        n = self.sc.planner.circle_views
+        n = self.sc.planner.strategy.views
         centre, radius, height = circle_geometry(self.sc)
         cam0 = self.kin.camera_poses(np.asarray(self.sc.robot.start, float))[0, :3, 3]
         phi0 = float(np.arctan2(cam0[1] - centre[1], cam0[0] - centre[0]))
@@ -284,6 +284,6 @@ class RandomViewsPlanner:
 def make_baseline(sc: Scenario, kin: RobotKinematics, sampler: StateSampler, evaluator: ViewEvaluator,
                   obstacles: PlanningObstacles, motion: MotionPlanner, utility, overlap_h: float | None):
     """The baseline planner.strategy names ("view_circle" or "random_views")."""
-    if sc.planner.strategy == "view_circle":
+    if sc.planner.strategy_name() == "ViewCircle":
         return ViewCirclePlanner(sc, kin, evaluator, obstacles, motion, utility, overlap_h)
     return RandomViewsPlanner(sc, sampler, evaluator, obstacles, motion, utility, overlap_h)

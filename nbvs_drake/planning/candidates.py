@@ -27,7 +27,7 @@ class StateSampler:
         self.kin = kin
         s = resolve_sensor(sc.sensor)
         self.z_near = s.z_near
-        self.z_far = min(s.z_far, sc.planner.max_view_distance or s.z_far)
+        self.z_far = min(s.z_far, sc.planner.max_view_distance)
         self._X_PF = np.ascontiguousarray([X for X, _ in kin.joint_fixed], dtype=np.float64)
         self._axes = np.ascontiguousarray([a / np.linalg.norm(a) for _, a in kin.joint_fixed], dtype=np.float64)
         self._X_L5C = np.ascontiguousarray(kin.X_L5C, dtype=np.float64)

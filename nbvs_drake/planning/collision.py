@@ -17,7 +17,7 @@ from ..scene import add_environment
 from . import bulk
 from .clearance import FREE, UNKNOWN, FreeCertificate, Unsupported
 
-#: the robot's base link (the PatrolBot's body), which planner.base_clearance pads
+#: the robot's base link (the PatrolBot's body), which planner.obstacles.base_clearance pads
 BASE_BODY = "base_link"
 
 
@@ -29,7 +29,7 @@ class CollisionModel:
     obstacle_boxes: (centre, size) boxes standing for the unknown and occupied space of the
     map (Vasquez-Gomez et al. 2017 §3: O = W_obj u W_unk u O_env) instead of the whole W_box.
     base_padding: the base link (BASE_BODY) counts as colliding within this distance of the
-    environment (Drake's padding; planner.base_clearance).
+    environment (Drake's padding; planner.obstacles.base_clearance).
     """
 
     def __init__(self, sc: Scenario, kin: RobotKinematics, *, object_obj: str | None = None,
@@ -46,7 +46,7 @@ class CollisionModel:
         self.checker = SceneGraphCollisionChecker(
             model=self.diagram, robot_model_instances=[robot], edge_step_size=0.02,
             env_collision_padding=padding, self_collision_padding=0.0)
-        if base_padding > 0:  # the base alone keeps this far from the environment (planner.base_clearance)
+        if base_padding > 0:  # the base alone keeps this far from the environment (planner.obstacles.base_clearance)
             base = plant.GetBodyByName(BASE_BODY, robot).index()
             self.checker.SetPaddingOneRobotBodyAllEnvironmentPairs(base, padding + base_padding)
         #: the free-space certificate (None: Drake checks every state; also when the world has

@@ -23,9 +23,9 @@ from .candidates import StateSampler
 from .clearance import FREE, UNKNOWN
 from .collision import CollisionModel
 
-#: planner.free_goal_heading: the turned goals tried, evenly spaced in heading (with the goal's own)
+#: planner.free_goal_heading(): the turned goals tried, evenly spaced in heading (with the goal's own)
 GOAL_HEADINGS = 12
-#: planner.free_goal_heading: of those, the ones with the shortest 'together' paths that are
+#: planner.free_goal_heading(): of those, the ones with the shortest 'together' paths that are
 #: steered in full (and checked, shortest first, with the goal's own paths)
 TURNED_GOALS = 3
 
@@ -38,7 +38,7 @@ class ObstacleModel:
     collision: CollisionModel
     scan: int = -1
     stats: dict = dc.field(default_factory=dict)
-    #: planner.base_clearance: the same obstacles with the base padded, for the paths and the
+    #: planner.obstacles.base_clearance: the same obstacles with the base padded, for the paths and the
     #: candidates' positions (None: these obstacles)
     padded: "ObstacleModel | None" = None
 
@@ -52,8 +52,8 @@ class ObstacleModel:
 
 class PlanningObstacles:
     """Builds each plan's ObstacleModel (Vasquez-Gomez et al. 2017 §3: O = W_obj u W_unk u
-    O_env). planner.map_obstacles "wbox": one model with the whole W_box, built once;
-    "voxels": the map's unknown and occupied voxels as at most planner.max_obstacle_boxes
+    O_env). planner.obstacles.map "wbox": one model with the whole W_box, built once;
+    "voxels": the map's unknown and occupied voxels as at most planner.obstacles.max_boxes
     merged boxes, built once per scan (the last one is kept: plans of the same map share it)."""
 
     def __init__(self, sc: Scenario, kin: RobotKinematics, wbox_model: CollisionModel | None = None):
@@ -65,7 +65,7 @@ class PlanningObstacles:
 
     def for_map(self, omap: OccupancyMap) -> ObstacleModel:
         p = self.sc.planner
-        if p.map_obstacles != "voxels":
+        if p.obstacles.map != "voxels":
             if self._wbox is None:
                 self._wbox = CollisionModel(self.sc, self.kin)
             if self._wbox_padded is None:  # also beside a W_box model given to the constructor
@@ -74,7 +74,7 @@ class PlanningObstacles:
         if self._last is not None and self._last.scan == omap.scan_count:
             return ObstacleModel(self._last.collision, self._last.scan, padded=self._last.padded)
         t = time.perf_counter()
-        boxes, block = omap.obstacle_boxes(p.max_obstacle_boxes)
+        boxes, block = omap.obstacle_boxes(p.obstacles.max_boxes)
         model = CollisionModel(self.sc, self.kin, obstacle_boxes=boxes)
         padded = self._padded(boxes, omap.scan_count)
         self._last = ObstacleModel(model, omap.scan_count, {
@@ -83,9 +83,9 @@ class PlanningObstacles:
         return self._last
 
     def _padded(self, boxes, scan: int) -> ObstacleModel | None:
-        """planner.base_clearance > 0: the same obstacles (the map's `boxes`, or W_box when None)
+        """planner.obstacles.base_clearance > 0: the same obstacles (the map's `boxes`, or W_box when None)
         with the base padded by it; else None."""
-        pad = self.sc.planner.base_clearance
+        pad = self.sc.planner.obstacles.base_clearance
         if pad <= 0:
             return None
         return ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, base_padding=pad), scan)
@@ -93,9 +93,9 @@ class PlanningObstacles:
 
 def reached_goal(sc: Scenario, goal: np.ndarray, states: np.ndarray) -> np.ndarray:
     """The state a path from `connect_many` to `goal` ends on: the goal, or with
-    planner.free_goal_heading its twin turned about the arm's mount (the same view; the exact
+    planner.free_goal_heading() its twin turned about the arm's mount (the same view; the exact
     steering ends on it to ~1e-14)."""
-    return states[-1].copy() if sc.planner.free_goal_heading else np.array(goal, float)
+    return states[-1].copy() if sc.planner.free_goal_heading() else np.array(goal, float)
 
 
 def undecided_free(asks: dict, obstacles: ObstacleModel) -> dict:
@@ -225,37 +225,37 @@ class MotionPlanner:
                 rng: np.random.Generator | None = None):
         """A collision-free path from q0 to q1: (kind, controls, states) or None. The steering
         function's direct paths first (a tree that connects at its first extension); then, with
-        planner.detour_steering, paths whose base drives through a waypoint beside the straight
+        planner.steering.detours, paths whose base drives through a waypoint beside the straight
         line (`steer_via`, `detour_waypoints`: around the table, from one side of the object to
-        the other); then RRT Ext-Ext with up to planner.rrt_max_nodes vertices."""
+        the other); then RRT Ext-Ext with up to planner.rrt_max_nodes() vertices."""
         rc, p = self.sc.robot, self.sc.planner
-        arcs = p.weights if p.arc_steering else None
+        arcs = p.weights if p.steering.arcs else None
         found = self._first_free(q0, itertools.chain(steer(q0, q1, rc, arcs), self._detours(q0, q1)), obstacles)
         if found is not None:
             return found
-        if p.rrt_max_nodes > 0 and rng is not None:
+        if p.rrt_max_nodes() > 0 and rng is not None:
             from .rrt import rrt_ext_ext
             res = rrt_ext_ext(q0, q1, self.sc.robot, np.asarray(p.weights), self.sampler.sample_states,
                               lambda s: self.path_free(s, obstacles), self.kin.clip_arm, rng,
-                              max_nodes=p.rrt_max_nodes, step=p.tree_step)
+                              max_nodes=p.rrt_max_nodes(), step=p.tree_step)
             if res.found:
                 return "rrt", res.controls, res.states
         return None
 
     def _detours(self, q0: np.ndarray, q1: np.ndarray):
         """The detour sequences (`steer_via` through each of `detour_waypoints`) when
-        planner.detour_steering, else none."""
-        if not self.sc.planner.detour_steering:
+        planner.steering.detours, else none."""
+        if not self.sc.planner.steering.detours:
             return iter(())
         rc = self.sc.robot
         return (s for w in detour_waypoints(q0, q1, rc.xy_bounds) for s in steer_via(q0, q1, w, rc))
 
     def _turned_goal_options(self, q0: np.ndarray, goal: np.ndarray) -> list:
-        """planner.free_goal_heading: (kind, controls, states) of direct steering paths to the
+        """planner.free_goal_heading(): (kind, controls, states) of direct steering paths to the
         goal turned about the arm's mount (`RobotKinematics.turned_about_mount`, the same
         camera pose) to each of GOAL_HEADINGS headings around its own and to the headings
         that face the direction of travel on arrival (forward or backward: no final turn):
-        'together' (and 'arc' with planner.arc_steering) to the TURNED_GOALS of them with the
+        'together' (and 'arc' with planner.steering.arcs) to the TURNED_GOALS of them with the
         shortest 'together' (eq. 8, `bulk.edge_lengths`). The path's last state is the
         turned goal."""
         rc, p = self.sc.robot, self.sc.planner
@@ -278,7 +278,7 @@ class MotionPlanner:
         out = []
         for t in twins[np.argsort(lengths, kind="stable")[:TURNED_GOALS]]:
             out.append(("together", steer_together(q0, t, rc)))
-            if p.arc_steering:
+            if p.steering.arcs:
                 c = steer_arc(q0, t, rc)
                 if c is not None:
                     out.append(("arc", c))
@@ -308,7 +308,7 @@ class MotionPlanner:
         paper's way). "roadmap": the shortest free direct steering path of each goal (`steer`);
         one search of the mission's roadmap for all goals whose shortest steering path
         ('together') is blocked (`Roadmap.query`), its path taken where it is shorter (kind
-        "roadmap"); detours (planner.detour_steering) for the goals still without a path. Every
+        "roadmap"); detours (planner.steering.detours) for the goals still without a path. Every
         path returned has passed `path_free` (Drake decides what the conservative model
         cannot)."""
         goals = np.asarray(goals, float).reshape(-1, 8)
@@ -319,14 +319,14 @@ class MotionPlanner:
 
     def _connect_many(self, q0, goals, obstacles, rng) -> list:
         p, rc = self.sc.planner, self.sc.robot
-        if p.motion_planner != "roadmap" or obstacles.collision.certificate is None or rng is None:
+        if p.is_roadmap() is False or obstacles.collision.certificate is None or rng is None:
             return [self.connect(q0, g, obstacles, rng) for g in goals]
         out: list = [None] * len(goals)
         length = np.full(len(goals), np.inf)
         for i, g in enumerate(goals):  # the shortest free direct steering path
             options = [(kind, c, rollout(q0, c, rc.control_dt))
-                       for kind, c in steer(q0, g, rc, p.weights if p.arc_steering else None)]
-            if p.free_goal_heading:  # the same view with the base turned about the arm's mount
+                       for kind, c in steer(q0, g, rc, p.weights if p.steering.arcs else None)]
+            if p.free_goal_heading():  # the same view with the base turned about the arm's mount
                 options += self._turned_goal_options(q0, g)
             lengths = [path_length(o[2], p.weights) for o in options]
             for j in np.argsort(lengths, kind="stable"):

@@ -43,18 +43,18 @@ class ORTPlanner:
     def grow(self, q_current: np.ndarray, rng: np.random.Generator, obstacles: ObstacleModel) -> tuple[Tree, int]:
         p = self.sc.planner
         w = np.asarray(p.weights)
-        tree = Tree(np.asarray(q_current, float), p.ort_vertices, self.sc.robot)
+        tree = Tree(np.asarray(q_current, float), p.strategy.vertices, self.sc.robot)
         it = 0
         targets = self.sampler.targets(rng)
         paths_free = lambda paths: self.motion.tree_paths_free(paths, obstacles)  # noqa: E731
-        budget = ITERATIONS_PER_VERTEX * p.ort_vertices
+        budget = ITERATIONS_PER_VERTEX * p.strategy.vertices
         bulk_growth = self.motion.bulk_checks and obstacles.collision.certificate is not None
         grid = bulk.TreeGrid(self.sc.robot.xy_bounds, tree.q.shape[0]) if bulk_growth else None
         # each vertex's clearance margins (bulk._walk), where its edge's check computed them
         margins = np.full((tree.q.shape[0], obstacles.collision.certificate.margin_size), -1.0) \
             if bulk_growth else None
-        while tree.n < p.ort_vertices + 1 and it < budget:
-            b = min(p.ort_batch, budget - it)
+        while tree.n < p.strategy.vertices + 1 and it < budget:
+            b = min(p.strategy.batch, budget - it)
             it += b
             batch = np.stack([next(targets) for _ in range(b)])
             if bulk_growth:
@@ -116,7 +116,7 @@ class ORTPlanner:
         dist = 1.0 / (1.0 + rho) if p.use_distance else np.ones_like(rho)
         if p.metric == "seed001":  # its own ray casting: no coarse pass
             met, order = self.evaluator.evaluate(omap, q), None
-        else:  # the vertices ranked by g (coarse to fine with planner.coarse_stride)
+        else:  # the vertices ranked by g (coarse to fine with planner.coarse_stride())
             score = ranking_score(self.evaluator, omap, p.metric, self.overlap_h, un_total)
             met, order = self.evaluator.evaluate_ranked(omap, q, scaled_score(score, dist))
         times["visibility_s"] = time.perf_counter() - t

@@ -57,7 +57,7 @@ class RandomSamplingPlanner:
         times, stages = {}, {}
         obstacles: ObstacleModel = self.obstacles.for_map(omap)
         stages.update(obstacles.stats)
-        # planner.base_clearance: the positions and the paths keep the base clear of the
+        # planner.obstacles.base_clearance: the positions and the paths keep the base clear of the
         # environment; the expected utility's rollouts meet the true obstacles
         paths = obstacles.for_paths()
         cand = free_candidates(generator, paths, rng, omap, stages, times)
@@ -68,7 +68,7 @@ class RandomSamplingPlanner:
         if p.metric == "seed001":  # its own ray casting: no coarse pass
             met = self.evaluator.evaluate(omap, cand)
             order = None
-        else:  # the candidates ranked by reg * info (coarse to fine with planner.coarse_stride)
+        else:  # the candidates ranked by reg * info (coarse to fine with planner.coarse_stride())
             met, order = self.evaluator.evaluate_ranked(
                 omap, cand, ranking_score(self.evaluator, omap, p.metric, self.overlap_h, un_total))
         times["visibility_s"] = time.perf_counter() - t

@@ -147,7 +147,8 @@ def arm_only_candidates(kin: RobotKinematics, q_now: np.ndarray, n: int, rng: np
 def landmark_solids(sc: Scenario):
     """The known solids that hide registration landmarks (mission.landmark_occlusion: the
     table and the chairs, `registration.KnownSolids`), or None (occlusion not modelled)."""
-    if not sc.mission.landmark_occlusion:
+    vv = sc.localisation.verified_views
+    if vv is None or not vv.landmarks.occlusion:
         return None
     from ..registration import KnownSolids
     return KnownSolids.of(sc)
@@ -174,7 +175,8 @@ def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.rand
 def landmark_normals(sc: Scenario, omap):
     """The object points' normals when landmarks carry them (mission.landmark_facing), else
     None: `registration_landmarks`' object_normals."""
-    return omap.object_normals if sc.mission.landmark_facing else None
+    vv = sc.localisation.verified_views
+    return omap.object_normals if vv is not None and vv.landmarks.facing else None
 
 
 class Recovery:
@@ -189,7 +191,8 @@ class Recovery:
         self.motion = motion
         self.obstacles = obstacles
         self._center = 0.5 * (np.asarray(sc.scene.bbox_min, float) + np.asarray(sc.scene.bbox_max, float))
-        self._checker = checker if sc.mission.recovery_rollouts > 0 else None
+        self.vv = sc.localisation.verified_views
+        self._checker = checker if self.vv.recovery_rollouts > 0 else None
         self._checks = 0  # rollout checks so far: each draws from its own seeded generator
         self._solids = landmark_solids(sc)
 
@@ -220,7 +223,7 @@ class Recovery:
         cov = self._checker.registered_cov(cov)
         self._checks += 1
         rng = np.random.default_rng([self.sc.seed, 23, self._checks])
-        return self._checker.rollouts_free(controls, states, obs, cov, rng, self.sc.mission.recovery_rollouts)
+        return self._checker.rollouts_free(controls, states, obs, cov, rng, self.vv.recovery_rollouts)
 
     def _shifted(self, states: np.ndarray) -> list[np.ndarray]:
         out = []
@@ -239,12 +242,12 @@ class Recovery:
         planned look-at point within mission.view_tolerance_rad (purpose "correct": exact
         motion, its scan is the sensing scan); else the shortest free steering path to the
         planned state (purpose "view": verified again); status "no_path" when neither is free."""
-        mi = self.sc.mission
+        mi = self.vv
         obs = self.obstacles.for_map(omap)
         point = look_at_point(self.kin, q_target, self._center)
         q_arm = arm_correction(self.kin, q_now, q_target, point)
         d, _ = camera_error(self.kin, q_arm, q_target)
-        if d <= 3 * mi.view_tolerance_m and aim_error(self.kin, q_arm, point)[0] <= mi.view_tolerance_rad:
+        if d <= 3 * mi.tolerance_m and aim_error(self.kin, q_arm, point)[0] <= mi.tolerance_rad:
             found = self._direct(q_now, q_arm, obs, cov)
             if found is not None:
                 return PlanResult("ok", q_arm, found[1], found[2], "arm_correction",

@@ -2,12 +2,12 @@
 PRM in the spirit of OMPL's LazyPRM, with the edges of the steering function).
 
 - **Vertices** are free states of the known environment, sampled when the first plan needs them
-  (`planner.roadmap_vertices`): uniform states, states with the arm tucked up (the compact pose
+  (`planner.motion_planner.vertices`): uniform states, states with the arm tucked up (the compact pose
   for driving between the table and the chairs: base-first sampling), and Gaussian pairs near the
   obstacles (the free one of two nearby states of which one is blocked: the narrow passages).
   Each is proved free by the conservative model (planning/bulk.py). The chairs and the table do
   not move, so the vertices and the edges stay for the whole mission.
-- **Edges** join each vertex to its `planner.roadmap_neighbors` nearest in the weighted metric
+- **Edges** join each vertex to its `planner.motion_planner.neighbors` nearest in the weighted metric
   of eq. 8; an edge a -> b is the steering function's exact control sequence
   (`motion.steer_together`), weighted by its eq. 8 length, and is checked only when a search
   wants to use it (lazily), in the direction it is travelled, and at most once per obstacle model.
@@ -67,7 +67,7 @@ class Roadmap:
         p = sc.planner
         self.w = np.asarray(p.weights, float)
         self.rc = bulk.robot_params(sc.robot)
-        self.k = p.roadmap_neighbors
+        self.k = p.motion_planner.neighbors
         self.V = np.zeros((0, 8))
         self.src = np.zeros(0, np.int64)
         self.dst = np.zeros(0, np.int64)
@@ -153,7 +153,7 @@ class Roadmap:
         self._add_edges(a, b, directed=direction != "both")
 
     def build(self, rng: np.random.Generator, collision) -> int:
-        q = self.sample(rng, self.sc.planner.roadmap_vertices, collision)
+        q = self.sample(rng, self.sc.planner.motion_planner.vertices, collision)
         idx = self._add_vertices(q)
         self._connect(idx, len(self.V), self.k)
         return len(idx)

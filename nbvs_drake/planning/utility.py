@@ -40,8 +40,8 @@ class DeterministicUtility:
 
 
 class ExpectedUtilityScore:
-    """EU: Algorithm 1 for each candidate with its control sequence (planner.eu_samples
-    rollouts, planner.eu_weighting, planner.eu_max_collision_rate; the rollouts start from the
+    """EU: Algorithm 1 for each candidate with its control sequence (planner.utility.samples
+    rollouts, planner.utility.weighting, planner.utility.max_collision_rate; the rollouts start from the
     belief's spread `request.start_cov`). Each rollout's final state is scored with
     g = reg * info * dist (reg only with planner.eu_rollout_registration)."""
     name = "eu"
@@ -54,11 +54,11 @@ class ExpectedUtilityScore:
         #: seconds spent checking rollouts for collision (reset by `select_best` per plan)
         self.checks_s = 0.0
         p = sc.planner
-        need = sample_count_bound(p.eu_alpha, p.eu_gamma)
-        if p.eu_samples < need:
+        need = sample_count_bound(p.utility.alpha, p.utility.gamma)
+        if p.utility.samples < need:
             import warnings
-            warnings.warn(f"planner.eu_samples = {p.eu_samples} is below the eq. 18 bound {need} for "
-                          f"alpha = {p.eu_alpha}, gamma = {p.eu_gamma}: collisions may go undetected", stacklevel=2)
+            warnings.warn(f"planner.utility.samples = {p.utility.samples} is below the eq. 18 bound {need} for "
+                          f"alpha = {p.utility.alpha}, gamma = {p.utility.gamma}: collisions may go undetected", stacklevel=2)
 
     def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float,
                       registration: bool = True) -> np.ndarray:
@@ -93,7 +93,7 @@ class ExpectedUtilityScore:
         """The registration's own spread (planner.eu_registered_sigma), plus the belief's
         `belief_cov` (3, 3) when given: with verified views every rollout starts from it, a
         registered belief being only as good as the registration."""
-        cov = np.diag(np.square(np.asarray(self.sc.planner.eu_registered_sigma, float)))
+        cov = np.diag(np.square(np.asarray(self.sc.localisation.verified_views.registered_sigma, float)))
         return cov if belief_cov is None else np.asarray(belief_cov, float) + cov
 
     def leg_cov(self) -> np.ndarray:
@@ -101,7 +101,8 @@ class ExpectedUtilityScore:
         mission.leg_turns also one control step of corrective turn (the re-planned leg turns
         back onto its line before it drives, and a turn's noise is per step)."""
         cov = self.registered_cov()
-        if self.sc.mission.leg_turns:
+        vv = self.sc.localisation.verified_views
+        if vv is not None and vv.legs is not None and vv.legs.after_turns:
             cov[2, 2] += (self.sc.noise.sigma_w * self.sc.robot.control_dt) ** 2
         return cov
 
@@ -116,16 +117,16 @@ class ExpectedUtilityScore:
         when every leg is, and its value is the last leg's."""
         p = self.sc.planner
         omap = request.omap
-        if self.sc.mission.verify_views:
+        if self.sc.localisation.verified_views is not None:
             final_utility = self._verified_utility(request, cand)
         else:
             def final_utility(s):
-                return self.state_utility(omap, s, un_total, cand.factors["dist"], p.eu_rollout_registration)
+                return self.state_utility(omap, s, un_total, cand.factors["dist"], True)
         ends = plan_legs(self.sc, cand.controls)
         start, checked, collided, eu = 0, 0, 0, None
         for j, end in enumerate(ends):
             last = j == len(ends) - 1
-            if not self.sc.mission.verify_views:
+            if self.sc.localisation.verified_views is None:
                 cov = request.start_cov if j == 0 else None
             else:
                 cov = self.registered_cov(request.start_cov) if j == 0 else self.leg_cov()
@@ -151,11 +152,11 @@ class ExpectedUtilityScore:
                       start_cov, final_utility, escape: bool = True, k: int | None = None,
                       max_collision_rate: float | None = None, free_start: bool | None = None):
         """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
-        states (m+1, 8); k, max_collision_rate and free_start (planner.eu_free_start) default
+        states (m+1, 8); k, max_collision_rate and free_start (planner.utility.free_start) default
         to the planner's."""
         p = self.sc.planner
-        k = p.eu_samples if k is None else k
-        rate = p.eu_max_collision_rate if max_collision_rate is None else max_collision_rate
+        k = p.utility.samples if k is None else k
+        rate = p.utility.max_collision_rate if max_collision_rate is None else max_collision_rate
         # the nominal path's escape from a colliding start
         skip = (self.motion.escape_prefix(states, obstacles) or 0) if escape else 0
         verdicts = self._rollout_verdicts(states[1:], obstacles)
@@ -178,9 +179,9 @@ class ExpectedUtilityScore:
         return expected_utility(
             states[0], controls, self.sc.robot.control_dt, k, self.sc.noise, request.rng,
             free, final_utility,
-            weighting=p.eu_weighting, max_collision_rate=rate, start_cov=start_cov,
+            weighting=p.utility.weighting, max_collision_rate=rate, start_cov=start_cov,
             block_free=block_free if self.motion.bulk_checks else None,
-            start_free=obstacles.free if (p.eu_free_start if free_start is None else free_start) else None)
+            start_free=obstacles.free if (p.utility.free_start if free_start is None else free_start) else None)
 
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):
         """The utility of a rollout's final state when views are verified (mission.verify_views,
@@ -215,7 +216,7 @@ class ExpectedUtilityScore:
 
 def make_utility(sc: Scenario, evaluator: ViewEvaluator, motion: MotionPlanner, overlap_h: float | None):
     """The scenario's utility strategy (planner.utility)."""
-    if sc.planner.utility == "eu":
+    if sc.planner.is_expected():
         return ExpectedUtilityScore(sc, evaluator, motion, overlap_h)
     return DeterministicUtility()
 

@@ -61,8 +61,8 @@ class ClusterViewGenerator:
         _, centroids, sizes = unknown_clusters(omap.in_wbox() & omap.unknown_mask(), omap.spec.centers())
         if len(sizes) == 0:
             return np.zeros((0, NQ)), 0
-        per = max(1, p.view_poses // len(sizes))  # eq. 1: poses per cluster
-        d_max = p.max_view_distance or self.z_far
+        per = max(1, p.strategy.poses // len(sizes))  # eq. 1: poses per cluster
+        d_max = p.max_view_distance
         states, tried = [], 0
         for c in centroids:
             for _ in range(per):

@@ -19,7 +19,7 @@ from ..sensor import ray_directions
 class ViewEvaluator:
     """Scores robot states by simulating their scans in the map (batch numba kernel) with the
     sensor's model (mapping.view_metrics): the camera's pixel grid (one ray per
-    planner.ray_stride x ray_stride block), field of view and depth range; each ray starts at
+    planner.evaluator.stride x ray_stride block), field of view and depth range; each ray starts at
     the camera, and known surface within the minimum range blinds it. The planner's working
     range (planner.max_view_distance) is a separate filter of the candidates
     (candidates.StateSampler). near_unknown_blinds True: unknown space within the minimum
@@ -32,25 +32,25 @@ class ViewEvaluator:
         self.kin = kin
         self.near_unknown_blinds = bool(near_unknown_blinds)
         self.sensor = sc.sensor
-        self.stride = stride or sc.planner.ray_stride
-        self.hrt_a = sc.planner.hrt_a if hrt_a is None else hrt_a
+        self.stride = stride or sc.planner.evaluator.stride
+        self.hrt_a = sc.planner.hrt_a() if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
-        #: planner.coarse_stride: the first pass's rays of evaluate_ranked (None: off)
-        self.coarse_stride = sc.planner.coarse_stride if sc.planner.coarse_stride > self.stride else 0
-        self.refine_views = sc.planner.refine_views or sc.planner.top_k
+        #: planner.coarse_stride(): the first pass's rays of evaluate_ranked (None: off)
+        self.coarse_stride = sc.planner.coarse_stride() if sc.planner.coarse_stride() > self.stride else 0
+        self.refine_views = sc.planner.refine_views() or sc.planner.top_k
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
         full, _, t_far = ray_directions(sc.sensor, 1)  # the outermost pixel centres bound every stride's rays
         self.frustum = (K.frustum_planes(full), float(t_far.max()))
         from ..sensor import intrinsics
         self.pitch = 1.0 / intrinsics(sc.sensor)[2]  # rad per pixel at the image centre
         #: the coverage radius r of the "coverage" information term (0: not computed)
-        self.coverage_radius = sc.planner.coverage_radius if sc.planner.metric == "coverage" else 0.0
+        self.coverage_radius = sc.planner.coverage.radius if sc.planner.metric == "coverage" else 0.0
         import numba
         self.n_chunks = max(1, numba.get_num_threads())
-        #: planner.facing_density: a ray on known surface gains over the density of the side it meets
-        self.facing_density = bool(sc.planner.facing_density)
-        #: planner.view_occluders: the known environment's boxes that end the views' rays
-        self.occluders = K.known_occluders(sc) if sc.planner.view_occluders else None
+        #: planner.coverage.facing_density: a ray on known surface gains over the density of the side it meets
+        self.facing_density = bool(sc.planner.coverage.facing_density)
+        #: planner.view_occluders(): the known environment's boxes that end the views' rays
+        self.occluders = K.known_occluders(sc) if sc.planner.view_occluders() else None
 
     def evaluate(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
         """Metrics (N, K.N_METRICS) of the states q (N, 8); see view_metrics.M_*."""
@@ -63,7 +63,7 @@ class ViewEvaluator:
     def evaluate_ranked(self, omap: OccupancyMap, q: np.ndarray, score) -> tuple[np.ndarray, np.ndarray]:
         """(metrics (N, K.N_METRICS), order): the states' metrics and their ranking by
         `score(metrics (N, K.N_METRICS))` (N,), best first (stable; `score` may carry
-        `surface_margin` and `per_ray`, see ranking_score). With planner.coarse_stride, coarse to fine:
+        `surface_margin` and `per_ray`, see ranking_score). With planner.coarse_stride(), coarse to fine:
         every state is evaluated with the coarse rays first (the per-ray columns scaled to this
         evaluator's ray count, PER_RAY_COLUMNS), the best `refine_views` of that ranking again
         at ray_stride; the order lists those by their exact score, then the others by their

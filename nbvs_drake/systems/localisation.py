@@ -79,13 +79,13 @@ class Localisation(LeafSystem):
     predicted end state (dead reckoning). When the controller reports that a new plan has
     finished (idle), the scan is taken: the point cloud (world frame at the believed camera
     pose) without invalid returns, and the no-return pixels as maximum-range rays; with
-    mission.relocalization = icp it is registered against the registration model (the known
+    localisation.method = icp it is registered against the registration model (the known
     environment plus the earlier registered scans: planar MAP point-to-plane ICP with the
     executed plan's motion-model prior and the see-through check against the known solids and
     the map's free space, `registration.register_scan`), and the belief is corrected. A scan
     whose registration fails keeps the odometry; its plan's pose spread carries over to the
     next registration's prior and to the planner (the covariance), and with
-    mission.skip_unregistered_scans the scan is handed on marked not to be integrated. With
+    localisation.skip_unregistered_scans the scan is handed on marked not to be integrated. With
     exact odometry (no noise) nothing is registered.
 
     With mission.verify_views (planning/recovery.py) the frame at the end of a plan that moved
@@ -119,11 +119,13 @@ class Localisation(LeafSystem):
         super().__init__()
         self.sc = sc
         self.reg_cfg = registration_config(sc)
+        vv = sc.localisation.verified_views
+        self._leg_turns = bool(vv is not None and vv.legs is not None and vv.legs.after_turns)
         self._solids = KnownSolids.of(sc)
         self._dirs = ray_directions(sc.sensor, 1)[0]
         self._z_far = resolve_sensor(sc.sensor).z_far
         q0 = np.asarray(q0, float)
-        model0 = environment_model(sc, self.reg_cfg) if sc.mission.relocalization == "icp" else RegistrationModel()
+        model0 = environment_model(sc, self.reg_cfg) if sc.localisation.method == "icp" else RegistrationModel()
         mem = _Memory(Belief.exact(q0), 0, -1, model0, RegisteredScan())
         self._pc = self.DeclareAbstractInputPort("point_cloud", AbstractValue.Make(PointCloud()))
         from pydrake.systems.sensors import ImageDepth32F
@@ -167,7 +169,7 @@ class Localisation(LeafSystem):
         pending = mem.belief.covariance
         tau: ControlSequence = self._tau.Eval(context)
         check = ""
-        if self.sc.mission.relocalization == "icp" and mem.belief.scan > 0:
+        if self.sc.localisation.method == "icp" and mem.belief.scan > 0:
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
                                            np.random.default_rng([self.sc.seed, 13, k] + (
                                                [len(mem.frames)] if mem.frames else [])))
@@ -186,13 +188,13 @@ class Localisation(LeafSystem):
                     pending = np.zeros((3, 3))
                 elif not refine:
                     pending = prior
-                    integrate = not self.sc.mission.skip_unregistered_scans
+                    integrate = not self.sc.localisation.skip_unregistered_scans
                 # (a refining registration that fails leaves the scan at the registered frame's pose)
                 check = self._verify(tau, icp, corr.apply_state(mem.belief.state),
-                                     _recoveries(mem.frames, self.sc.mission.leg_turns))
+                                     _recoveries(mem.frames, self._leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
-        if integrate and (not check or (icp.applied and self.sc.mission.merge_frames)):
+        if integrate and (not check or icp.applied):
             model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
@@ -204,7 +206,7 @@ class Localisation(LeafSystem):
             return scan, belief, model, mem.frames + (frame,)
         info = dict(plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
                     icp=frame["icp"])
-        if self.sc.mission.verify_views:
+        if self.sc.localisation.verified_views is not None:
             info["frames"] = list(mem.frames)
         scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info, X_WC)
         belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
@@ -212,15 +214,15 @@ class Localisation(LeafSystem):
 
     def _refines(self, tau: ControlSequence, mem) -> bool:
         """mission.refine_scan_registration: this scan ends a correction path of verified views."""
-        mi = self.sc.mission
-        return bool(mi.verify_views and mi.refine_scan_registration and tau.purpose == "correct" and mem.frames)
+        mi = self.sc.localisation.verified_views
+        return bool(mi is not None and mi.refine_scan and tau.purpose == "correct" and mem.frames)
 
     def _verify(self, tau: ControlSequence, icp, corrected: np.ndarray, n_frames: int) -> str:
         """What a frame at the end of plan tau asks for under mission.verify_views: "" (it is
         the sensing scan), "relocalise" (not registered) or "correct" (registered, but the
         corrected camera is off tau's target view)."""
-        mi = self.sc.mission
-        if not mi.verify_views or tau.purpose == "correct" or tau.target is None or \
+        mi = self.sc.localisation.verified_views
+        if mi is None or tau.purpose == "correct" or tau.target is None or \
                 (n_frames >= mi.max_recoveries and tau.purpose != "leg"):
             return ""
         if icp is None or not icp.applied:
@@ -229,7 +231,7 @@ class Localisation(LeafSystem):
             return "correct"
         from ..planning.recovery import camera_error
         d, a = camera_error(self._kin, corrected, tau.target)
-        return "correct" if d > mi.view_tolerance_m or a > mi.view_tolerance_rad else ""
+        return "correct" if d > mi.tolerance_m or a > mi.tolerance_rad else ""
 
     def _calc_outcome(self, context, value):
         """The due scan's registration and the memory after it (None: no scan due), cached:

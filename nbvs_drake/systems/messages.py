@@ -70,7 +70,7 @@ class RegisteredScan(_Immutable):
     """Scan `index` (1-based; 0: none yet) at its registered (corrected) pose: the sensor
     origin (3,), the returns (N, 3) and the maximum-range end points of the no-return pixels
     (M, 3), world frame; `integrate`: False when the registration failed and
-    mission.skip_unregistered_scans holds it back; `info`: plan_id, t_sim, render_s,
+    localisation.skip_unregistered_scans holds it back; `info`: plan_id, t_sim, render_s,
     register_s, icp (the registration's summary) for the scan report; `pose`: the camera's
     registered pose X_WC (4, 4)."""
     index: int = 0

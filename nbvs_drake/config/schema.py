@@ -1,0 +1,678 @@
+"""The scenario schema: one section per component, each a typed dataclass read by Drake's
+``yaml_load_typed``. Variants are tagged unions (``!Ort {vertices: 2000}``), "automatic" and
+"from the preset" are ``None``. Each section checks its own fields (``check``), naming them by
+their nested path. ``docs/configuration.md`` is written from this file (`nbvs config-reference`).
+
+Defaults are the papers' settings (Vasquez-Gomez et al. 2017 Tables 1 and 4, FACTS.md); the
+presets in ``config/presets/`` name this project's planners on top of them.
+"""
+
+
+import dataclasses as dc
+import math
+from typing import Optional, Union
+
+from ..errors import ScenarioError
+
+#: the error a registered belief keeps (m, m, rad standard deviations in x, y, heading): the
+#: default spread verified views' rollouts start from, the prior of the re-registered scan
+#: after a correction, and the floor of motion.min_leg_turn
+REGISTERED_SIGMA = (0.01, 0.01, 0.01)
+
+#: per-kind defaults of ObjectConfig.size and .up (when None)
+OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up="y"),
+                "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z")}
+OBJECT_UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
+
+SENSOR_PRESETS = {
+    "sr4000": dict(width=176, height=144, fov_x_deg=43.6, fov_y_deg=34.6, z_near=0.4,
+                   z_far=5.0, noise_a=0.0, noise_b=0.0),
+    "kinect": dict(width=640, height=480, fov_x_deg=57.0, fov_y_deg=43.0, z_near=0.7,
+                   z_far=6.0, noise_a=0.0012, noise_b=0.0019),
+}
+
+METRICS = ("sur", "fig", "sig", "vuv", "rsv", "seed001", "surface", "coverage")
+
+
+def require(cond: bool, msg: str) -> None:
+    """Raises ScenarioError(msg) unless cond."""
+    if not cond:
+        raise ScenarioError(msg)
+
+
+def finite(*xs) -> bool:
+    return all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in xs)
+
+
+def variant_name(v) -> str:
+    """A union value's tag: its class name (``Ort``)."""
+    return type(v).__name__
+
+
+# --------------------------------------------------------------------------------------
+# The world: robot, scene, sensor, motion noise
+# --------------------------------------------------------------------------------------
+
+
+@dc.dataclass
+class RobotConfig:
+    """The PatrolBot + Katana 6M180 (models/patrolbot_katana.urdf) and its velocity limits."""
+    urdf: str = "patrolbot_katana.urdf"  #: relative to models/ (or absolute)
+    #: start state [x, y, theta, q1..q5] (m, rad); the object must be in view from it
+    start: list[float] = dc.field(
+        default_factory=lambda: [-1.45, 0.0, 0.0, 0.0, 0.35, -0.35, -0.25, 0.0])
+    xy_bounds: list[float] = dc.field(default_factory=lambda: [-1.9, 1.9])  #: the base's x and y range (m)
+    control_dt: float = 0.1  #: each control u_t is held for this long (s)
+    max_linear_velocity: float = 0.3  #: m/s used by the steering function
+    max_angular_velocity: float = 0.6  #: rad/s (base)
+    max_arm_velocity: float = 0.6  #: rad/s (each arm joint, below the Katana limits)
+
+    def check(self, at: str = "robot") -> None:
+        require(len(self.start) == 8 and finite(*self.start),
+                f"{at}.start must be 8 finite numbers [x, y, theta, q1..q5], got {self.start}")
+        require(len(self.xy_bounds) == 2 and self.xy_bounds[0] < self.xy_bounds[1],
+                f"{at}.xy_bounds must be [min, max] with min < max, got {self.xy_bounds}")
+        for k in ("control_dt", "max_linear_velocity", "max_angular_velocity", "max_arm_velocity"):
+            v = getattr(self, k)
+            require(finite(v) and v > 0, f"{at}.{k} must be > 0, got {v}")
+
+
+@dc.dataclass
+class ObjectConfig:
+    """The object: mesh -> `up` -> `rpy_deg` -> `yaw_deg`, scaled, then set on the table (lowest
+    point on the table top, footprint centred at `xy`)."""
+    #: teapot (Newell's patches), bunny (models/stanford_bunny.ply), dragon
+    #: (models/stanford_dragon.ply) or mesh (the file `mesh`)
+    kind: str = "teapot"
+    mesh: Optional[str] = None  #: OBJ/PLY/STL/OFF/glTF/GLB path (relative to the scenario file) for kind mesh
+    #: the longest side in metres of the mesh's own bounding box; None: the kind's (teapot 0.40,
+    #: bunny 0.467 and dragon 0.511 = the papers' objects, mesh 0.40). A kind changed by a
+    #: setting without a size takes the new kind's default
+    size: Optional[float] = None
+    scale: Optional[float] = None  #: mesh units -> metres instead of a size (size must then be None)
+    xy: list[float] = dc.field(default_factory=lambda: [0.0, 0.0])  #: footprint centre on the table
+    #: the mesh's up axis (x, y, z, -x, -y, -z), turned to +z cyclically (x -> y -> z -> x), a
+    #: negative axis then turned 180 deg about x; None: the kind's (bunny and dragon y, else z)
+    up: Optional[str] = None
+    #: then a rotation about the world's fixed x, y, z axes (Drake's RollPitchYaw), degrees
+    rpy_deg: list[float] = dc.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    yaw_deg: float = 0.0  #: then a turn about the vertical, degrees
+    tessellation: int = 12  #: teapot: subdivisions per Bezier patch side
+
+    def resolved_size(self) -> float:
+        """The longest side (m), or 0 when `scale` is used."""
+        if self.scale is not None:
+            return 0.0
+        return OBJECT_KINDS[self.kind]["size"] if self.size is None else float(self.size)
+
+    def resolved_up(self) -> str:
+        return OBJECT_KINDS[self.kind]["up"] if self.up is None else self.up
+
+    def check(self, at: str = "scene.object") -> None:
+        require(self.kind in OBJECT_KINDS, f"{at}.kind must be one of {', '.join(OBJECT_KINDS)}, got {self.kind!r}")
+        require(self.kind != "mesh" or bool(self.mesh), f"{at}.kind is 'mesh' but {at}.mesh is not set")
+        require(self.size is None or (finite(self.size) and self.size > 0),
+                f"{at}.size must be > 0 (m) or null (the kind's), got {self.size}")
+        require(self.scale is None or (finite(self.scale) and self.scale > 0),
+                f"{at}.scale must be > 0, got {self.scale}")
+        require(self.size is None or self.scale is None, f"{at}: set size or scale, not both")
+        require(self.up is None or self.up in OBJECT_UP_AXES,
+                f"{at}.up must be one of x, y, z, -x, -y, -z, got {self.up!r}")
+        require(len(self.rpy_deg) == 3 and finite(*self.rpy_deg),
+                f"{at}.rpy_deg must be 3 finite numbers [roll, pitch, yaw] in degrees, got {self.rpy_deg}")
+        require(finite(self.yaw_deg), f"{at}.yaw_deg must be finite, got {self.yaw_deg}")
+        require(len(self.xy) == 2, f"{at}.xy must have 2 numbers, got {self.xy}")
+        require(self.tessellation >= 2, f"{at}.tessellation must be >= 2, got {self.tessellation}")
+
+
+@dc.dataclass
+class SceneConfig:
+    """The table, the object on it, the bounding box W_box around what is reconstructed, and
+    the known obstacles."""
+    table_size: list[float] = dc.field(default_factory=lambda: [0.8, 1.0])  #: x, y (m)
+    table_height: float = 0.43  #: top surface z (m)
+    bbox_min: list[float] = dc.field(default_factory=lambda: [-0.4, -0.4, 0.43])  #: W_box (m)
+    bbox_max: list[float] = dc.field(default_factory=lambda: [0.4, 0.4, 0.95])
+    #: none, or chairs (nine chairs around the table, Vasquez-Gomez et al. 2017 Fig. 13)
+    clutter: str = "none"
+    object: ObjectConfig = dc.field(default_factory=ObjectConfig)
+    gt_points: int = 40000  #: ground-truth surface samples for coverage
+
+    def check(self, at: str = "scene") -> None:
+        require(len(self.bbox_min) == 3 and len(self.bbox_max) == 3,
+                f"{at}.bbox_min and {at}.bbox_max must have 3 numbers each")
+        require(all(a < b for a, b in zip(self.bbox_min, self.bbox_max)),
+                f"scene bounding box is empty: bbox_min {self.bbox_min} must be below bbox_max {self.bbox_max}")
+        require(len(self.table_size) == 2 and all(v > 0 for v in self.table_size),
+                f"{at}.table_size must be two positive numbers, got {self.table_size}")
+        require(self.table_height > 0, f"{at}.table_height must be > 0, got {self.table_height}")
+        require(self.clutter in ("none", "chairs"), f"{at}.clutter must be 'none' or 'chairs', got {self.clutter!r}")
+        require(self.gt_points >= 100, f"{at}.gt_points must be >= 100, got {self.gt_points}")
+        self.object.check(f"{at}.object")
+
+
+@dc.dataclass
+class SensorConfig:
+    """The depth camera: a preset, each of whose values a field may replace (None: the preset's)."""
+    #: sr4000 (176x144 ToF, 43.6x34.6 deg, 0.4-5 m), kinect (640x480, 57x43 deg, 0.7-6 m, axial
+    #: noise) or custom (every field below set)
+    preset: str = "sr4000"
+    width: Optional[int] = None  #: pixels
+    height: Optional[int] = None
+    fov_x_deg: Optional[float] = None
+    fov_y_deg: Optional[float] = None
+    z_near: Optional[float] = None  #: m
+    z_far: Optional[float] = None
+    noise_a: Optional[float] = None  #: axial noise sigma_z = noise_a + noise_b (z - 0.4)^2 (m)
+    noise_b: Optional[float] = None
+
+    def resolved(self) -> "SensorConfig":
+        """A copy with every field filled in from the preset."""
+        if self.preset != "custom":
+            require(self.preset in SENSOR_PRESETS,
+                    f"sensor.preset must be one of {sorted(SENSOR_PRESETS) + ['custom']}, got {self.preset!r}")
+            base = SENSOR_PRESETS[self.preset]
+        else:
+            base = {}
+        vals = {}
+        for f in dc.fields(self):
+            if f.name == "preset":
+                continue
+            v = getattr(self, f.name)
+            if v is None:
+                require(f.name in base, f"sensor.{f.name} must be set for preset custom")
+                v = base[f.name]
+            vals[f.name] = v
+        return SensorConfig(preset=self.preset, **vals)
+
+    def check(self, at: str = "sensor") -> None:
+        rs = self.resolved()
+        require(rs.width > 0 and rs.height > 0, f"{at}.width/height must be > 0, got {rs.width}x{rs.height}")
+        require(0 < rs.fov_x_deg < 180 and 0 < rs.fov_y_deg < 180,
+                f"{at} field of view must be in (0, 180) deg, got {rs.fov_x_deg}x{rs.fov_y_deg}")
+        require(0 < rs.z_near < rs.z_far, f"{at} range needs 0 < z_near < z_far, got {rs.z_near}..{rs.z_far}")
+        require(rs.noise_a >= 0 and rs.noise_b >= 0, f"{at}.noise_a/noise_b must be >= 0")
+
+
+@dc.dataclass
+class NoiseConfig:
+    """Zero-mean Gaussian control noise (Vasquez-Gomez et al. 2017 §6.1, Table 4), truncated at
+    +-beta sigma, on the commanded velocities only (a component commanded 0 is executed
+    exactly, as the authors' library samples it and as Table 4 was measured)."""
+    sigma_v: float = 0.00165  #: m/s (Table 4: 1.65 mm/s)
+    sigma_w: float = 0.28  #: rad/s (Table 4)
+    sigma_arm: list[float] = dc.field(default_factory=lambda: [0.0] * 5)  #: rad/s per arm joint
+    beta: float = 3.0  #: truncation in units of sigma
+
+    def any(self) -> bool:
+        """Whether any control is noisy."""
+        return self.sigma_v > 0 or self.sigma_w > 0 or any(v > 0 for v in self.sigma_arm)
+
+    def check(self, at: str = "noise") -> None:
+        for k in ("sigma_v", "sigma_w"):
+            v = getattr(self, k)
+            require(finite(v) and v >= 0, f"{at}.{k} must be >= 0 (a standard deviation), got {v}")
+        require(len(self.sigma_arm) == 5 and all(finite(v) and v >= 0 for v in self.sigma_arm),
+                f"{at}.sigma_arm must be 5 numbers >= 0, got {self.sigma_arm}")
+        require(finite(self.beta) and self.beta > 0, f"{at}.beta must be > 0 (in sigmas), got {self.beta}")
+
+
+# --------------------------------------------------------------------------------------
+# Perception: the map and the localisation
+# --------------------------------------------------------------------------------------
+
+
+@dc.dataclass
+class MapperConfig:
+    """The probabilistic occupancy map of W_box (OctoMap's sensor model)."""
+    voxel_size: float = 0.02  #: m
+    margin: float = 0.04  #: map = W_box grown by this (x, y, top); the table bounds it below
+    prob_hit: float = 0.7
+    prob_miss: float = 0.4
+    clamp_min: float = 0.1192
+    clamp_max: float = 0.971
+    free_below: float = 0.45  #: class thresholds: free < 0.45 <= unknown <= 0.55 < occupied
+    occupied_above: float = 0.55
+    table_clearance: float = 0.005  #: points closer than this to the table top are not object points
+
+    def check(self, scene: SceneConfig, at: str = "mapper") -> None:
+        require(self.voxel_size > 0, f"{at}.voxel_size must be > 0, got {self.voxel_size}")
+        require(self.margin >= 0, f"{at}.margin must be >= 0, got {self.margin}")
+        require(0.5 < self.prob_hit < 1, f"{at}.prob_hit must be in (0.5, 1), got {self.prob_hit}")
+        require(0 < self.prob_miss < 0.5, f"{at}.prob_miss must be in (0, 0.5), got {self.prob_miss}")
+        require(0 < self.clamp_min < self.free_below <= 0.5 <= self.occupied_above < self.clamp_max < 1,
+                f"{at} thresholds need 0 < clamp_min < free_below <= 0.5 <= occupied_above < clamp_max < 1")
+        nvox = 1
+        for a, b in zip(scene.bbox_min, scene.bbox_max):
+            nvox *= math.ceil((b - a + 2 * self.margin) / self.voxel_size)
+        require(nvox <= 20_000_000, f"map too large: {nvox} voxels (raise {at}.voxel_size)")
+
+
+@dc.dataclass
+class Legs:
+    """A plan's path executed in legs, each ending after a drive that more base motion follows,
+    with a localisation frame at each leg's end (only under motion noise)."""
+    #: a leg also ends after each long turn in place that a drive follows, so that the frame
+    #: corrects the heading before the drive
+    after_turns: bool = False
+
+
+@dc.dataclass
+class Landmarks:
+    """Which registration landmarks (the table, the chairs, the object seen so far) count as
+    in view when a re-localisation view is chosen and when the expected utility weighs a
+    rollout by the landmarks its frame keeps in view."""
+    occlusion: bool = False  #: one hidden behind a known solid (a chair's back, the table top) does not
+    facing: bool = False  #: one counts only where its surface faces the camera (back-face test)
+
+
+@dc.dataclass
+class VerifiedViews:
+    """Verified views (planning/recovery.py): when a plan that moved the base ends, a
+    localisation frame (not integrated) is registered first; the scan is taken when the
+    corrected camera is within the tolerances of the planned view, else the camera is re-aimed
+    (a correction) or, when the frame cannot be registered, a re-localisation view is taken."""
+    tolerance_m: float = 0.03  #: camera position tolerance (m)
+    tolerance_rad: float = 0.05  #: camera direction tolerance (rad)
+    max_recoveries: int = 3  #: frames before the next frame is the scan as it is
+    legs: Optional[Legs] = None  #: execute plans in legs (None: one frame at the plan's end)
+    #: a recovery path must also be free in this many rollouts of its own controls from the
+    #: belief's spread (Algorithm 1's rule); 0: only its base shifted by +-2 cm, +-0.02 rad
+    recovery_rollouts: int = 0
+    #: the scan after a correction path is registered again from the frame's pose (prior:
+    #: REGISTERED_SIGMA) and integrated there: a frame registered from a large error can
+    #: stop in a wrong minimum that fits
+    refine_scan: bool = False
+    landmarks: Landmarks = dc.field(default_factory=Landmarks)
+    #: the spread (m, m, rad standard deviations in x, y, heading) of a registered belief that
+    #: the rollouts of each leg and of the recovery paths start from: the registration's own
+    #: accuracy (the open scene's measured up to ~2 cm; the room's, with the chairs in the
+    #: registration model, 0.5 mm)
+    registered_sigma: list[float] = dc.field(default_factory=lambda: list(REGISTERED_SIGMA))
+
+    def check(self, at: str) -> None:
+        require(finite(self.tolerance_m, self.tolerance_rad) and self.tolerance_m > 0 and self.tolerance_rad > 0,
+                f"{at}.tolerance_m and tolerance_rad must be > 0, got {self.tolerance_m}, {self.tolerance_rad}")
+        require(self.max_recoveries >= 0, f"{at}.max_recoveries must be >= 0, got {self.max_recoveries}")
+        require(self.recovery_rollouts >= 0, f"{at}.recovery_rollouts must be >= 0, got {self.recovery_rollouts}")
+        require(len(self.registered_sigma) == 3 and all(finite(v) and v >= 0 for v in self.registered_sigma),
+                f"{at}.registered_sigma must be 3 numbers >= 0 (m, m, rad), got {self.registered_sigma}")
+
+
+@dc.dataclass
+class LocalisationConfig:
+    """Registration of each scan against the model (planar MAP point-to-plane ICP with the
+    motion model's prior), and the verified views under motion noise."""
+    method: str = "icp"  #: icp, or none (dead reckoning)
+    #: a scan whose registration fails is counted but not integrated (a misplaced scan would
+    #: corrupt the map and the model the next scans register against)
+    skip_unregistered_scans: bool = True
+    #: the fit caps each point's residual here (m), also the cost of a point on new surface;
+    #: None: 0.01 with verified views, else the last stage's 2 cm
+    residual_cap: Optional[float] = None
+    #: a finer last stage: correspondences within 8 mm and a 2 mm point-to-plane sigma, for a
+    #: noise-free depth sensor (registration.FINE_STAGE)
+    fine_stage: bool = False
+    verified_views: Optional[VerifiedViews] = None  #: None: every frame after a plan is the scan
+
+    def cap(self) -> float:
+        """The residual cap in metres (0: the last stage's distance)."""
+        if self.residual_cap is not None:
+            return self.residual_cap
+        return 0.01 if self.verified_views is not None else 0.0
+
+    def check(self, at: str = "localisation") -> None:
+        require(self.method in ("icp", "none"), f"{at}.method must be 'icp' or 'none', got {self.method!r}")
+        require(self.residual_cap is None or (finite(self.residual_cap) and 0 <= self.residual_cap <= 0.02),
+                f"{at}.residual_cap must be in [0, 0.02] m or null, got {self.residual_cap}")
+        if self.verified_views is not None:
+            self.verified_views.check(f"{at}.verified_views")
+
+
+# --------------------------------------------------------------------------------------
+# The planner: strategy, view evaluation, utility, motion planning
+# --------------------------------------------------------------------------------------
+
+
+@dc.dataclass
+class RandomSampling:
+    """Vasquez-Gomez et al. 2017: random state samples ranked by the utility."""
+
+
+@dc.dataclass
+class Ort:
+    """The Object Reconstruction Tree (the ORT paper): a tree of states grown by RRT extension,
+    the best vertex taken."""
+    vertices: int = 10000  #: tree size k (10^4 is the paper's trade-off)
+    #: extensions per batch, each from the tree as it stood before it, edges checked together
+    batch: int = 64
+
+
+@dc.dataclass
+class ViewSampling:
+    """Santos et al. 2020: conditional random view sampling around the surface's clusters, then IK."""
+    poses: int = 60  #: poses per iteration, spread over the clusters
+
+
+@dc.dataclass
+class ViewCircle:
+    """Baseline: views evenly spaced on a horizontal circle around W_box's centre, each aimed at
+    the centre (the start scan counts as the first)."""
+    views: int = 12
+    #: the cameras' horizontal distance from W_box's centre (m); None: 0.1 m beyond z_near + W_box's
+    #: larger half-extent and its footprint corners + 0.15 m
+    range: Optional[float] = None
+    height: Optional[float] = None  #: the cameras' height (m); None: the middle of W_box's upper half
+
+
+@dc.dataclass
+class RandomViews:
+    """Baseline: the first random view that looks at W_box and can be reached; no ranking."""
+
+
+@dc.dataclass
+class Oracle:
+    """The greedy oracle: knows the true object and takes the view that adds the most coverage."""
+
+
+Strategy = Union[RandomSampling, Ort, ViewSampling, ViewCircle, RandomViews, Oracle]
+#: each strategy's name in reports (summary.json's "planner")
+STRATEGY_WORDS = {"RandomSampling": "random_sampling", "Ort": "ort", "ViewSampling": "view_sampling",
+                  "ViewCircle": "view_circle", "RandomViews": "random_views", "Oracle": "oracle"}
+
+
+@dc.dataclass
+class Exact:
+    """Uniform ray casting of every candidate view."""
+    stride: int = 2  #: one ray per stride x stride pixel block
+    #: coarse-to-fine: every candidate first scored at this stride (> stride), then the best
+    #: `refine` again at `stride`; None: every candidate at `stride`
+    coarse_stride: Optional[int] = None
+    refine: Optional[int] = None  #: candidates re-scored at `stride` (None: planner.top_k; else >= top_k)
+    #: the known environment (the table, the chairs) occludes rays outside the map: a user in a
+    #: cluttered room reaches for it (False: the map alone decides, as in the papers)
+    occluders: bool = False
+
+    def check(self, top_k: int, at: str) -> None:
+        require(self.stride >= 1, f"{at}.stride must be >= 1, got {self.stride}")
+        require(self.coarse_stride is None or self.coarse_stride > self.stride,
+                f"{at}.coarse_stride must be more than stride {self.stride}, got {self.coarse_stride}")
+        require(self.refine is None or self.refine >= top_k,
+                f"{at}.refine must be >= planner.top_k {top_k}, got {self.refine}")
+
+
+@dc.dataclass
+class Hrt:
+    """Hierarchical ray tracing (Vasquez-Gomez et al. 2017 §5.4): rays start at voxel size
+    2^a x voxel_size and refine where needed."""
+    a: int = 1  #: resolution parameter, 1..4
+    stride: int = 2  #: one ray per stride x stride pixel block
+
+    def check(self, top_k: int, at: str) -> None:
+        require(1 <= self.a <= 4, f"{at}.a must be in 1..4, got {self.a}")
+        require(self.stride >= 1, f"{at}.stride must be >= 1, got {self.stride}")
+
+
+@dc.dataclass
+class Deterministic:
+    """The deterministic utility g = pos reg sur dist at the candidate itself."""
+
+
+@dc.dataclass
+class Expected:
+    """The expected utility under the control noise (Vasquez-Gomez et al. 2017 Algorithm 1)
+    over the candidates with a path."""
+    samples: int = 500  #: k rollouts per candidate (Table 7: 500)
+    #: probability (Algorithm 1 lines 10-12: weights = normalised products of the per-step
+    #: densities) or mean (each rollout a draw of the error distribution, plainly averaged)
+    weighting: str = "probability"
+    #: share of the rollouts that may collide before a candidate is unfeasible (colliding ones
+    #: count with g = 0); 0: any collision rules it out (Algorithm 1, line 7)
+    max_collision_rate: float = 0.0
+    #: rollouts whose start, a draw of the belief's spread, collides are dropped (the robot
+    #: stands free); False: any colliding start makes the candidate unfeasible
+    free_start: bool = False
+    alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
+    gamma: float = 0.05
+
+    def check(self, at: str) -> None:
+        require(self.samples >= 1, f"{at}.samples must be >= 1, got {self.samples}")
+        require(self.weighting in ("mean", "probability"),
+                f"{at}.weighting must be 'mean' or 'probability', got {self.weighting!r}")
+        require(finite(self.max_collision_rate) and 0 <= self.max_collision_rate < 1,
+                f"{at}.max_collision_rate must be in [0, 1), got {self.max_collision_rate}")
+        require(0 < self.alpha < 1 and 0 < self.gamma < 0.99,
+                f"{at}.alpha and gamma must be in (0, 1), got {self.alpha}, {self.gamma}")
+
+
+@dc.dataclass
+class RrtExtExt:
+    """Vasquez-Gomez et al. 2017 §7.4: direct steering, then detours (steering.detours), then one
+    RRT Ext-Ext per candidate, one candidate after the other."""
+    max_nodes: int = 10000  #: RRT vertices per search (Table 1: 10^4); 0: direct steering only
+
+
+@dc.dataclass
+class Roadmap:
+    """Direct steering, then one lazy search of a roadmap kept for the whole mission for all
+    remaining candidates at once, shortcut; detours only where the roadmap does not reach."""
+    vertices: int = 1500  #: free states sampled when the first plan needs it (it grows around misses)
+    neighbors: int = 10  #: edges to this many nearest vertices (eq. 8 metric)
+    #: a candidate may be reached with the base turned about the arm's first joint and that
+    #: joint turned back (the same camera pose) when that makes the path shorter
+    free_goal_heading: bool = False
+
+    def check(self, at: str) -> None:
+        require(self.vertices >= 10, f"{at}.vertices must be >= 10, got {self.vertices}")
+        require(self.neighbors >= 2, f"{at}.neighbors must be >= 2, got {self.neighbors}")
+
+
+@dc.dataclass
+class Steering:
+    """The steering function's path shapes beyond the papers' turn-drive-turn."""
+    #: when no direct path reaches a candidate, try a base path through a waypoint beside the
+    #: straight line (around the table to the object's far side) before the search
+    detours: bool = False
+    #: also turn-arc-turn (the base turns while it drives); the shortest free path is taken
+    arcs: bool = False
+
+
+@dc.dataclass
+class CoverageGain:
+    """Settings of the metric `coverage` (the covered surface area a view is expected to add)."""
+    radius: float = 0.003  #: a surface point is covered when a sample lies this close (m; the papers' 3 mm)
+    #: a ray on known surface counts the density of the side facing it (the points' normals),
+    #: so a view of a thin part's unseen side gains
+    facing_density: bool = False
+
+
+@dc.dataclass
+class Obstacles:
+    """What pos(x) and the paths avoid besides the known environment."""
+    map: str = "wbox"  #: the unknown region: wbox (the whole box) or voxels (the map's unknown and occupied voxels)
+    max_boxes: int = 300  #: voxels: at most this many merged boxes
+    #: keep the robot's base this far from the environment and the map's obstacles (m; Drake's
+    #: padding); the rollouts, recovery paths and executed motion meet the true geometry
+    base_clearance: float = 0.0
+
+
+@dc.dataclass
+class PlannerConfig:
+    """The next-best-view/state planner."""
+    strategy: Strategy = dc.field(default_factory=RandomSampling)
+    #: the information term: sur (Vasquez-Gomez et al. 2017's surface factor), fig, sig, vuv,
+    #: rsv (the ORT paper), seed001 (Santos et al. 2020), surface (the share of rays expected to
+    #: return on new surface) or coverage (the covered surface area the view is expected to add)
+    metric: str = "sur"
+    coverage: CoverageGain = dc.field(default_factory=CoverageGain)
+    n_candidates: int = 4000  #: state samples whose director ray meets W_box
+    max_generation_factor: int = 200  #: at most this many x n_candidates raw samples
+    #: the director ray must enter W_box within this distance (m): where the sensor samples
+    #: densely enough for the coverage threshold
+    max_view_distance: float = 1.0
+    overlap_h: float = 0.5  #: registration threshold h (Table 1: 50 %); 0: no overlap filter
+    top_k: int = 25  #: candidates kept for motion planning (§7.6 step 7)
+    #: the distance weights of eq. 8 (x, y, theta, q1..q5)
+    weights: list[float] = dc.field(default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
+    use_distance: bool = True  #: the dist(x) factor of g
+    evaluator: Union[Exact, Hrt] = dc.field(default_factory=Exact)
+    utility: Union[Deterministic, Expected] = dc.field(default_factory=Deterministic)
+    motion_planner: Union[RrtExtExt, Roadmap] = dc.field(default_factory=RrtExtExt)
+    tree_step: float = 1.0  #: tree extension step (RRT, ORT) in the weighted metric of eq. 8
+    steering: Steering = dc.field(default_factory=Steering)
+    obstacles: Obstacles = dc.field(default_factory=Obstacles)
+    #: when no candidate is feasible under the motion noise, views from the current base by the
+    #: arm alone before the run stops with no_feasible_under_noise
+    noise_fallback: bool = False
+
+    # what the components read
+    def is_expected(self) -> bool:
+        return isinstance(self.utility, Expected)
+
+    def strategy_name(self) -> str:
+        """The strategy's tag (`Ort`)."""
+        return variant_name(self.strategy)
+
+    def strategy_word(self) -> str:
+        """The strategy's name in reports (`ort`)."""
+        return STRATEGY_WORDS[variant_name(self.strategy)]
+
+    def hrt_a(self) -> int:
+        """The HRT resolution parameter (0: uniform ray casting)."""
+        return self.evaluator.a if isinstance(self.evaluator, Hrt) else 0
+
+    def coarse_stride(self) -> int:
+        """The coarse pass's stride (0: none)."""
+        return (self.evaluator.coarse_stride or 0) if isinstance(self.evaluator, Exact) else 0
+
+    def refine_views(self) -> int:
+        return (self.evaluator.refine or self.top_k) if isinstance(self.evaluator, Exact) else self.top_k
+
+    def view_occluders(self) -> bool:
+        return isinstance(self.evaluator, Exact) and self.evaluator.occluders
+
+    def is_roadmap(self) -> bool:
+        return isinstance(self.motion_planner, Roadmap)
+
+    def rrt_max_nodes(self) -> int:
+        return self.motion_planner.max_nodes if isinstance(self.motion_planner, RrtExtExt) else 0
+
+    def free_goal_heading(self) -> bool:
+        return isinstance(self.motion_planner, Roadmap) and self.motion_planner.free_goal_heading
+
+    def check(self, scene: SceneConfig, sensor: SensorConfig, at: str = "planner") -> None:
+        s = self.strategy
+        if isinstance(s, Ort):
+            require(s.vertices >= 2, f"{at}.strategy.vertices must be >= 2, got {s.vertices}")
+            require(s.batch >= 1, f"{at}.strategy.batch must be >= 1, got {s.batch}")
+        elif isinstance(s, ViewSampling):
+            require(s.poses >= 1, f"{at}.strategy.poses must be >= 1, got {s.poses}")
+        elif isinstance(s, ViewCircle):
+            require(s.views >= 2, f"{at}.strategy.views must be >= 2, got {s.views}")
+            require(s.range is None or (finite(s.range) and s.range > 0),
+                    f"{at}.strategy.range must be > 0 (m) or null, got {s.range}")
+            require(s.height is None or (finite(s.height) and s.height > scene.table_height),
+                    f"{at}.strategy.height must be above the table top ({scene.table_height} m) or null, "
+                    f"got {s.height}")
+            if s.range is not None:
+                half = [(b - a) / 2 for a, b in zip(scene.bbox_min, scene.bbox_max)]
+                h = s.height or scene.bbox_min[2] + 0.75 * (scene.bbox_max[2] - scene.bbox_min[2])
+                require(s.range > math.hypot(half[0], half[1]) or not scene.bbox_min[2] <= h <= scene.bbox_max[2],
+                        f"{at}.strategy.range {s.range} m puts the view circle inside W_box (its footprint "
+                        f"corners are {math.hypot(half[0], half[1]):.3f} m from the centre)")
+        require(self.metric in METRICS, f"{at}.metric must be one of {', '.join(METRICS)}, got {self.metric!r}")
+        require(self.coverage.radius > 0, f"{at}.coverage.radius must be > 0 m, got {self.coverage.radius}")
+        require(self.metric != "coverage" or isinstance(self.evaluator, Exact),
+                f"{at}.metric coverage needs the exact ray casting ({at}.evaluator !Exact)")
+        require(self.n_candidates > 0, f"{at}.n_candidates must be > 0, got {self.n_candidates}")
+        require(self.max_generation_factor >= 1, f"{at}.max_generation_factor must be >= 1")
+        z_near = sensor.resolved().z_near
+        require(finite(self.max_view_distance) and self.max_view_distance > z_near,
+                f"{at}.max_view_distance must be beyond the sensor's z_near ({z_near}), got {self.max_view_distance}")
+        require(finite(self.overlap_h) and 0 <= self.overlap_h <= 1,
+                f"{at}.overlap_h (h) must be in [0, 1], got {self.overlap_h}")
+        require(self.top_k > 0, f"{at}.top_k must be > 0, got {self.top_k}")
+        require(len(self.weights) == 8 and all(w >= 0 for w in self.weights),
+                f"{at}.weights must be 8 numbers >= 0, got {self.weights}")
+        self.evaluator.check(self.top_k, f"{at}.evaluator")
+        if isinstance(self.utility, Expected):
+            self.utility.check(f"{at}.utility")
+        mp = self.motion_planner
+        if isinstance(mp, Roadmap):
+            mp.check(f"{at}.motion_planner")
+        else:
+            require(mp.max_nodes >= 0, f"{at}.motion_planner.max_nodes must be >= 0, got {mp.max_nodes}")
+        require(self.tree_step > 0, f"{at}.tree_step must be > 0, got {self.tree_step}")
+        o = self.obstacles
+        require(o.map in ("wbox", "voxels"), f"{at}.obstacles.map must be 'wbox' or 'voxels', got {o.map!r}")
+        require(o.max_boxes >= 1, f"{at}.obstacles.max_boxes must be >= 1, got {o.max_boxes}")
+        require(finite(o.base_clearance) and o.base_clearance >= 0,
+                f"{at}.obstacles.base_clearance must be a finite distance >= 0 (m), got {o.base_clearance}")
+
+
+# --------------------------------------------------------------------------------------
+# The mission
+# --------------------------------------------------------------------------------------
+
+
+@dc.dataclass
+class MissionConfig:
+    """When the mission stops and what it reports."""
+    max_scans: int = 12
+    max_sim_time: float = 7200.0  #: simulated seconds before the run is cut off
+    #: after a collision of the executed motion: stop the run (the papers' robot experiments)
+    #: or continue (the collision is counted)
+    on_collision: str = "stop"
+    #: report the coverage ceiling (the share of the ground truth any reachable pose can see,
+    #: cached per object, pose, scene and sensor) and coverage / ceiling
+    coverage_ceiling: bool = True
+    stop_unknown_voxels: int = 0  #: stop below this many unknown voxels of W_box (0: off; the authors' library: 15)
+    #: stop when the best candidate's information term is below this (§7.5; 0: off)
+    stop_min_surface: float = 0.0
+    stop_min_utility: float = 0.0  #: stop when the best candidate's utility is below this (0: off)
+
+    def check(self, planner: PlannerConfig, at: str = "mission") -> None:
+        require(self.max_scans >= 1, f"{at}.max_scans must be >= 1, got {self.max_scans}")
+        require(self.max_sim_time > 0, f"{at}.max_sim_time must be > 0")
+        require(self.on_collision in ("stop", "continue"),
+                f"{at}.on_collision must be 'stop' or 'continue', got {self.on_collision!r}")
+        require(self.stop_unknown_voxels >= 0, f"{at}.stop_unknown_voxels must be >= 0, got {self.stop_unknown_voxels}")
+        require(finite(self.stop_min_surface) and 0 <= self.stop_min_surface < 1,
+                f"{at}.stop_min_surface must be in [0, 1), got {self.stop_min_surface}")
+        require(finite(self.stop_min_utility) and 0 <= self.stop_min_utility < 1,
+                f"{at}.stop_min_utility must be in [0, 1), got {self.stop_min_utility}")
+        name = planner.strategy_name()
+        require(name not in ("ViewCircle", "RandomViews") or not (self.stop_min_surface or self.stop_min_utility),
+                f"{at}.stop_min_surface/stop_min_utility stop on the best candidate's score; the baseline "
+                f"{name} does not rank its views: set both to 0")
+
+
+@dc.dataclass
+class Scenario:
+    """One mission: the world, the perception, the planner and the mission's limits. `preset`
+    names the preset the file starts from (config/presets/); the file's sections are merged
+    over it."""
+    name: str = "default"
+    seed: int = 0
+    preset: Optional[str] = None
+    robot: RobotConfig = dc.field(default_factory=RobotConfig)
+    scene: SceneConfig = dc.field(default_factory=SceneConfig)
+    sensor: SensorConfig = dc.field(default_factory=SensorConfig)
+    noise: NoiseConfig = dc.field(default_factory=NoiseConfig)
+    mapper: MapperConfig = dc.field(default_factory=MapperConfig)
+    localisation: LocalisationConfig = dc.field(default_factory=LocalisationConfig)
+    planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
+    mission: MissionConfig = dc.field(default_factory=MissionConfig)
+    base_dir: str = ""  #: the folder relative paths (meshes) are resolved against; set by the loader
+
+    def check(self) -> "Scenario":
+        """Raises ScenarioError naming the first impossible value by its nested path."""
+        self.robot.check()
+        self.scene.check()
+        self.sensor.check()
+        self.noise.check()
+        self.mapper.check(self.scene)
+        self.localisation.check()
+        self.planner.check(self.scene, self.sensor)
+        self.mission.check(self.planner)
+        return self

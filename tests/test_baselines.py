@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 
+from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import load_scenario
 from nbvs_drake.errors import ScenarioError
 from nbvs_drake.motion import path_length, rollout, wrap_angle
@@ -31,9 +32,10 @@ def _with_scans(omap, scans):
 
 def _scenario(first_scan_map, strategy, **planner):
     sc = copy.deepcopy(first_scan_map[0])
-    sc.planner.strategy = strategy
+    # the old flat keys, through the migration (config/legacy.py)
+    sc = _set(sc, f"planner.strategy={strategy}")
     for k, v in planner.items():
-        setattr(sc.planner, k, v)
+        sc = _set(sc, f"planner.{k}={v}")
     return sc
 
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from conftest import drake_free, near_contacts, random_states
 
+from nbvs_drake.config import Ort, Roadmap, RrtExtExt
 from nbvs_drake.config import load_scenario
 from nbvs_drake.errors import ScenarioError
 from nbvs_drake.motion import rollout, sample_control_noise, steer_together, wrap_angle
@@ -135,7 +136,7 @@ def roadmap_plan(kin, clutter):
     sc, model = clutter
     sc = copy.deepcopy(sc)
     sc.scene.object.kind, sc.scene.object.size = "bunny", -1
-    sc.planner.motion_planner = "roadmap"
+    sc.planner.motion_planner = Roadmap()
     sampler = StateSampler(sc, kin)
     motion = MotionPlanner(sc, kin, sampler)
     rng = np.random.default_rng(1)
@@ -169,7 +170,7 @@ def test_roadmap_is_kept_and_shortens_the_rrts_paths(roadmap_plan, kin):
     motion.connect_many(q0, goals[:5], ObstacleModel(model), np.random.default_rng(2))
     assert motion.last_query.get("built", 0) == 0 and len(motion.roadmap.V) >= n
     rrt_sc = copy.deepcopy(sc)
-    rrt_sc.planner.motion_planner, rrt_sc.planner.rrt_max_nodes = "rrt_ext_ext", 2000
+    rrt_sc.planner.motion_planner = RrtExtExt(max_nodes=2000)
     rrt = MotionPlanner(rrt_sc, kin, motion.sampler)
     via = [i for i, p in enumerate(paths) if p is not None and p[0] == "roadmap"][:3]
     got = rrt.connect_many(q0, goals[via], ObstacleModel(model), np.random.default_rng(3))
@@ -182,7 +183,7 @@ def test_an_unreachable_goal_costs_a_bounded_share(kin, clutter):
     connection edges and one growth round around it, not a full search."""
     sc, _ = clutter
     sc = copy.deepcopy(sc)
-    sc.planner.motion_planner = "roadmap"
+    sc.planner.motion_planner = Roadmap()
     c, h, t, a = np.array([-1.3, 1.3]), 2.2, 0.05, 0.45  # cage centre, wall height, thickness, half width
     walls = [((c[0] + dx * a, c[1] + dy * a, h / 2), (t + 2 * a * abs(dy), t + 2 * a * abs(dx), h))
              for dx, dy in ((1, 0), (-1, 0), (0, 1), (0, -1))]
@@ -200,7 +201,7 @@ def test_an_unreachable_goal_costs_a_bounded_share(kin, clutter):
     paths = motion.connect_many(np.array(sc.robot.start), goals, ObstacleModel(model), rng)
     assert paths[-1] is None and sum(p is not None for p in paths[:-1]) >= 5
     st = motion.last_query
-    k = sc.planner.roadmap_neighbors
+    k = sc.planner.motion_planner.neighbors
     assert st["grown"] <= GROWTH_SAMPLES * 2  # one growth round, for at most the goals not reached
     # its share: its own connection edges (2k in, and its tucked twin's) and the growth round's
     assert st["edges_checked"] <= 400 + (2 * k + 2 * k) * 2 + GROWTH_SAMPLES * 2 * 2 * k
@@ -210,7 +211,7 @@ def test_an_edge_through_space_found_occupied_is_not_used(kin, clutter):
     sc, _ = clutter
     sc = copy.deepcopy(sc)
     sc.scene.clutter = "none"
-    sc.planner.motion_planner = "roadmap"
+    sc.planner.motion_planner = Roadmap()
     sampler = StateSampler(sc, kin)
     motion = MotionPlanner(sc, kin, sampler)
     tuck = [0.0, np.pi / 2, 0.0, 0.0, 0.0]
@@ -241,7 +242,7 @@ def test_numba_tree_growth_grows_the_python_growths_tree(kin):
     last bit), the same tree paths."""
     from nbvs_drake.planning.ort import ORTPlanner
     sc = load_scenario()
-    sc.planner.ort_vertices = 400
+    sc.planner.strategy = Ort(vertices=400)
     sampler = StateSampler(sc, kin)
     obstacles = ObstacleModel(CollisionModel(sc, kin))
     trees = []
@@ -263,7 +264,7 @@ def test_expected_utility_with_bulk_rollout_checks_is_algorithm_1s(kin, clutter)
     from nbvs_drake.planning.utility import ExpectedUtilityScore
     sc, model = clutter
     sc = copy.deepcopy(sc)
-    sc.planner.eu_samples = 120
+    sc.planner.utility.samples = 120
     sampler = StateSampler(sc, kin)
     rng = np.random.default_rng(8)
     goals = sampler.generate(rng)[0]

@@ -33,12 +33,19 @@ def _cli_error(capsys, tmp_path, yaml_text, name="bad.yaml"):
     ("scene:\n  object:\n    kind: mesh\n    mesh: nowhere/bunny.ply\n", "object mesh not found"),
     ("scene:\n  object:\n    size: 0.9\n", "does not fit in the bounding box W_box"),
     ("scene: [1, 2\n", "malformed scenario"),
-    ("mission:\n  relocalization: gps\n", "mission.relocalization must be 'icp' or 'none'"),
+    ("localisation:\n  method: gps\n", "localisation.method must be 'icp' or 'none'"),
+    ("mission:\n  relocalization: gps\n", "localisation.method must be 'icp' or 'none'"),  # the old schema, migrated
     ("mission:\n  on_collision: ignore\n", "mission.on_collision must be 'stop' or 'continue'"),
     ("mission:\n  stop_min_surface: 1.5\n", "mission.stop_min_surface must be in [0, 1)"),
     ("mission:\n  stop_unknown_voxels: -3\n", "mission.stop_unknown_voxels must be >= 0"),
-    ("mission:\n  recovery_rollouts: -1\n", "mission.recovery_rollouts must be >= 0"),
-    ("planner:\n  view_occluders: true\n  hrt_a: 2\n", "planner.view_occluders needs uniform ray tracing"),
+    ("localisation:\n  verified_views:\n    recovery_rollouts: -1\n",
+     "localisation.verified_views.recovery_rollouts must be >= 0"),
+    ("planner:\n  evaluator: !Hrt {a: 2, occluders: true}\n", "occluders"),  # only the exact evaluator's
+    ("planner:\n  evaluator: !Hrt {a: 7}\n", "planner.evaluator.a must be in 1..4"),
+    ("planner:\n  hrt_a: 9\n", "planner.evaluator.a must be in 1..4"),  # the old schema, migrated
+    ("planner:\n  strategy: !Circle {}\n", "Circle"),
+    ("planner:\n  utility: !Expected {samples: 0}\n", "planner.utility.samples must be >= 1"),
+    ("noise:\n  perturb_zero_commands: true\n", "noise.perturb_zero_commands was removed"),
 ])
 def test_bad_scenarios_get_one_line_errors(capsys, tmp_path, yaml_text, expect):
     err = _cli_error(capsys, tmp_path, yaml_text)
@@ -54,7 +61,7 @@ def test_settings_override_fields_through_the_typed_schema():
                                  "name=teapot_eu_mu_w014"])
     assert (sc.noise.sigma_w, sc.planner.top_k, sc.noise.sigma_arm[0], sc.name, sc.seed) == \
         (0.14, 50, 0.01, "teapot_eu_mu_w014", 4)
-    assert sc.noise.sigma_v == base.noise.sigma_v and sc.planner.eu_samples == base.planner.eu_samples == 500
+    assert sc.noise.sigma_v == base.noise.sigma_v and sc.planner.utility.samples == base.planner.utility.samples == 500
     assert sc.base_dir == base.base_dir and sc.scene == base.scene
 
 

@@ -3,6 +3,7 @@ import json
 import pytest
 from conftest import small_scenario
 
+from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import load_scenario
 from nbvs_drake.mission import run_mission
 
@@ -169,8 +170,8 @@ def test_noisy_scenarios_run(tmp_path, name):
     sc = load_scenario(name)
     sc.mission.max_scans = 3
     sc.planner.n_candidates = 1500
-    sc.planner.eu_samples = 40
-    sc.planner.rrt_max_nodes = min(sc.planner.rrt_max_nodes, 400)
+    sc = _set(sc, "?planner.utility.samples=40")
+    sc = _set(sc, f"?planner.motion_planner.max_nodes={min(sc.planner.rrt_max_nodes(), 400)}")
     sc.scene.gt_points = 5000
     s = run_mission(sc, tmp_path, verbose=False)
     assert s["relocalization"] == "icp" and s["scans"] >= 2, s

@@ -1,6 +1,7 @@
 import numpy as np
 import pytest
 
+from nbvs_drake.config import Legs
 from nbvs_drake.config import NoiseConfig, Scenario
 from nbvs_drake.motion import rollout, steer
 from nbvs_drake.planning.collision import CollisionModel
@@ -193,7 +194,7 @@ def test_the_registered_spread_the_rollouts_start_from_is_the_scenarios():
     belief = np.diag([1e-4, 2e-4, 3e-4])
     np.testing.assert_allclose(eu.registered_cov(belief), belief + np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2]))
     turn = (sc.noise.sigma_w * sc.robot.control_dt) ** 2  # mission.leg_turns: one step of corrective turn
-    sc.mission.leg_turns = True
+    sc.localisation.verified_views.legs = Legs(after_turns=True)
     np.testing.assert_allclose(eu.leg_cov(), np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2 + turn]))
     with pytest.raises(ScenarioError, match="eu_registered_sigma"):
         load_scenario("cluttered_room", settings=["planner.eu_registered_sigma=[0.01, -1, 0.01]"])

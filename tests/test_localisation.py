@@ -23,7 +23,7 @@ def _cloud(P):
 
 def test_localisation_scans_once_per_finished_plan_and_predicts_the_belief(kin):
     sc = Scenario()
-    sc.mission.relocalization = "none"
+    sc.localisation.method = "none"
     q0 = np.array(sc.robot.start)
     loc = Localisation(sc, kin, q0, 0.1)
     sim = Simulator(loc)

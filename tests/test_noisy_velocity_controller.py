@@ -80,8 +80,7 @@ def test_noise_sigmas_layout():
 
 def test_a_component_commanded_zero_is_executed_exactly():
     """The authors' library (vpl) perturbs only non-zero velocities: driving straight (omega = 0)
-    keeps the heading, a turn in place (v = 0) keeps the position, and the rest of the plan
-    gets the same draws as with every component perturbed."""
+    keeps the heading, a turn in place (v = 0) keeps the position."""
     tau = _plan(m=30)
     U = tau.controls.copy()
     U[:10, 1] = 0.0   # drive straight
@@ -92,7 +91,3 @@ def test_a_component_commanded_zero_is_executed_exactly():
     eps = _replay(noise, 3, tau)[0][: tau.m] - U
     np.testing.assert_array_equal(eps[U == 0.0], 0.0)
     assert np.all(eps[:10, 0] != 0) and np.all(eps[10:20, 1] != 0)
-    every = NoiseConfig(perturb_zero_commands=True)
-    eps_all = _replay(every, 3, tau)[0][: tau.m] - U
-    assert np.all(eps_all[:, :2] != 0)
-    np.testing.assert_allclose(eps[U != 0.0], eps_all[U != 0.0], atol=1e-15)

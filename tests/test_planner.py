@@ -5,6 +5,7 @@ import pytest
 from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
+from nbvs_drake.config import Expected, Ort, RandomSampling, Roadmap, ViewSampling
 from nbvs_drake.mapping import view_metrics as K
 from nbvs_drake.motion import (
     detour_waypoints,
@@ -178,10 +179,10 @@ def test_free_goal_heading_reaches_the_same_view_by_a_path_no_longer(planner, fi
     goals = planner.generator.generate(rng, omap)[0]
     goals = goals[obst.free(goals)][:12]
     q0 = np.array(sc.robot.start)
-    sc.planner.arc_steering, sc.planner.free_goal_heading = True, False
+    sc.planner.steering.arcs, sc.planner.motion_planner.free_goal_heading = True, False
     plain = MotionPlanner(sc, kin, planner.motion.sampler).connect_many(q0, goals, obst, np.random.default_rng(0))
     sc2 = copy.deepcopy(sc)
-    sc2.planner.free_goal_heading = True
+    sc2.planner.motion_planner.free_goal_heading = True
     mp = MotionPlanner(sc2, kin, planner.motion.sampler)
     turned = mp.connect_many(q0, goals, obst, np.random.default_rng(0))
     w, moved = sc.planner.weights, 0
@@ -284,8 +285,7 @@ def test_planner_with_expected_utility(kin, first_scan_map):
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
     sc.planner.n_candidates = 600
-    sc.planner.utility = "eu"
-    sc.planner.eu_samples = 100
+    sc.planner.utility = Expected(samples=100)
     sc.noise.sigma_v = sc.noise.sigma_w = 0.0
     pl = make_planner(sc, kin)
     res = pl.plan(_request(omap, sc.robot.start))
@@ -325,10 +325,7 @@ def test_planner_system_passes_the_belief_covariance_to_the_expected_utility(kin
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
     sc.planner.n_candidates = 600
-    sc.planner.utility = "eu"
-    sc.planner.eu_samples = 100
-    sc.planner.eu_weighting = "mean"
-    sc.planner.eu_max_collision_rate = 0.5
+    sc.planner.utility = Expected(samples=100, weighting="mean", max_collision_rate=0.5)
     sc.noise.sigma_v = sc.noise.sigma_w = 0.0
     pl = make_planner(sc, kin)
     q0 = np.array(sc.robot.start)
@@ -350,12 +347,12 @@ def test_no_view_feasible_under_the_noise_stops_the_run_and_says_why(kin, first_
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
     sc.planner.n_candidates = 600
-    sc.planner.utility = "eu"
-    sc.planner.eu_samples = 100
-    sc.planner.eu_max_collision_rate = 0.0
+    sc.planner.utility = Expected(samples=100, max_collision_rate=0.0)
     sc.planner.overlap_h = 0.3  # the noisy scenarios' registration filter
     sc.planner.metric = "sur"  # the noisy scenarios' metric (with it every top candidate collides here)
-    sc.planner.arc_steering = sc.planner.free_goal_heading = False  # the noisy scenarios' paths
+    sc.planner.steering.arcs = False  # the noisy scenarios' paths
+    if isinstance(sc.planner.motion_planner, Roadmap):
+        sc.planner.motion_planner.free_goal_heading = False
     sc.noise.sigma_v, sc.noise.sigma_w = 1.0, 4.0
     pl = make_planner(sc, kin)
     sys_, ctx, _ = _planner_system_after(sc, pl, omap, _belief(sc.robot.start))
@@ -370,11 +367,8 @@ def test_ort_with_the_expected_utility(kin, first_scan_map):
     utility: the chosen vertex is feasible under the noise and its report carries the EU."""
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
-    sc.planner.strategy = "ort"
-    sc.planner.ort_vertices = 300
-    sc.planner.utility = "eu"
-    sc.planner.eu_samples = 60
-    sc.planner.eu_max_collision_rate = 0.05
+    sc.planner.strategy = Ort(vertices=300)
+    sc.planner.utility = Expected(samples=60, max_collision_rate=0.05)
     sc.planner.top_k = 5
     res = make_planner(sc, kin).plan(_request(omap, sc.robot.start))
     assert res.status == "ok" and res.path_kind == "ort"
@@ -386,9 +380,9 @@ def test_ort_with_the_expected_utility(kin, first_scan_map):
 def test_view_sampling_has_no_registration_filter(kin, first_scan_map):
     sc, _ = first_scan_map
     sc = copy.deepcopy(sc)
-    sc.planner.strategy = "view_sampling"
+    sc.planner.strategy = ViewSampling()
     assert make_planner(sc, kin).overlap_h is None
-    sc.planner.strategy = "random_sampling"
+    sc.planner.strategy = RandomSampling()
     assert make_planner(sc, kin).overlap_h == sc.planner.overlap_h
 
 

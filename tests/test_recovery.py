@@ -9,6 +9,8 @@ import pytest
 from pydrake.common.value import AbstractValue
 from test_registration import _cloud, _first_scan_then_plan, renderer, second_scan_in_view  # noqa: F401
 
+from nbvs_drake.config import VerifiedViews
+from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import load_scenario
 from nbvs_drake.motion import ControlSequence
 from nbvs_drake.planning.recovery import (
@@ -34,7 +36,7 @@ def test_a_frame_that_cannot_be_registered_triggers_relocalisation_then_the_next
     with the two localisation frames reported beside it."""
     sc, r, s1 = renderer
     sc = copy.deepcopy(sc)
-    sc.mission.verify_views = True
+    sc.localisation.verified_views = VerifiedViews()
     q0, U, states, qt, qb, P2, Xb = second_scan_in_view(sc, r)
     loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
     mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
@@ -421,13 +423,13 @@ def test_recovery_rollouts_reject_a_path_that_the_belief_s_spread_drives_into_th
 
 
 @pytest.mark.parametrize("refine", [False, True])
-def test_the_scan_after_a_correction_is_registered_again_with_refine_scan_registration(renderer, refine):  # noqa: F811
-    """mission.refine_scan_registration: the sensing scan that ends a correction path is
+def test_the_scan_after_a_correction_is_registered_again_with_refine_scan(renderer, refine):  # noqa: F811
+    """localisation.verified_views.refine_scan: the sensing scan that ends a correction path is
     registered too, from the frame's pose with the registration's own spread as its prior,
     and the belief takes that registration's correction; without it the scan is taken at
     the belief (the frame before it registered, the correction path is exact)."""
     from nbvs_drake.motion import REGISTERED_SIGMA
-    loc, mapper, ctx, b, scan, _ = _a_frame_then_its_correction(renderer, refine_scan_registration=refine)
+    loc, mapper, ctx, b, scan, _ = _a_frame_then_its_correction(renderer, refine_scan=refine)
     mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
     scan()
     rep = mapper.GetOutputPort("scan_report").Eval(mctx).info
@@ -445,22 +447,20 @@ def test_the_scan_after_a_correction_is_registered_again_with_refine_scan_regist
         np.testing.assert_array_equal(after.state, b.state)
 
 
-@pytest.mark.parametrize("merge", [True, False])
-def test_a_registered_frame_joins_the_registration_model_only_with_merge_frames(renderer, merge):  # noqa: F811
-    """mission.merge_frames: a localisation frame that registers corrects the belief either
-    way; it joins the registration model (the points later scans register against) only with
-    merge_frames, while the sensing scan always joins it."""
-    loc, mapper, ctx, b, scan, before = _a_frame_then_its_correction(renderer, merge_frames=merge)
+def test_a_registered_frame_joins_the_registration_model(renderer):  # noqa: F811
+    """A localisation frame that registers corrects the belief and joins the registration
+    model (the points later scans register against), as the sensing scan does."""
+    loc, mapper, ctx, b, scan, before = _a_frame_then_its_correction(renderer)
     lctx = loc.GetMyContextFromRoot(ctx)
     assert not np.array_equal(b.state, b.dead_reckoned)  # registered, corrected
     after_frame = len(loc._mem_of(lctx).model.points)
-    assert (after_frame > before) if merge else (after_frame == before)
+    assert after_frame > before
     scan()
     assert loc.GetOutputPort("belief").Eval(lctx).check == ""  # the sensing scan
     assert len(loc._mem_of(lctx).model.points) > after_frame
 
 
-def _a_frame_then_its_correction(renderer, **mission):  # noqa: F811
+def _a_frame_then_its_correction(renderer, **verified):  # noqa: F811
     """Verified views with the `mission` settings: the view plan's frame registers (the object
     in view) and asks for a correction (its target is beside where the plan ended). Returns
     (localisation, mapper, root context, the belief after the frame, scan(), the registration
@@ -468,9 +468,9 @@ def _a_frame_then_its_correction(renderer, **mission):  # noqa: F811
     sensing scan."""
     sc, r, s1 = renderer
     sc = copy.deepcopy(sc)
-    sc.mission.verify_views = True
-    for k, v in mission.items():
-        setattr(sc.mission, k, v)
+    sc.localisation.verified_views = VerifiedViews()
+    for k, v in verified.items():
+        setattr(sc.localisation.verified_views, k, v)
     q0, U, states, qt, qb, P2, Xb = second_scan_in_view(sc, r)
     loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
     lctx = loc.GetMyContextFromRoot(ctx)

@@ -51,10 +51,6 @@ def test_motion_prior_matches_the_noise():
     T[:, 1] = 0.6
     Ct = motion_prior(q0, T, 0.1, rollout(q0, T, 0.1)[-1], sc.noise, np.random.default_rng(0), n=2000)
     assert np.sqrt(Ct[2, 2]) == pytest.approx(sc.noise.sigma_w * 0.1 * np.sqrt(50), rel=0.1)
-    # perturbing every component (perturb_zero_commands) puts the heading walk on the drive too
-    sc.noise.perturb_zero_commands = True
-    C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0), n=2000)
-    assert np.sqrt(C[2, 2]) == pytest.approx(sc.noise.sigma_w * 0.1 * np.sqrt(50), rel=0.1)
     sc.noise.sigma_w = sc.noise.sigma_v = 0.0
     assert np.all(np.sqrt(np.diag(motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(0)))) < 1e-3)
 
@@ -81,8 +77,6 @@ def renderer(tmp_path_factory):
     from nbvs_drake.scanning import ScanRenderer
     sc = load_scenario()
     sc.noise.sigma_v, sc.noise.sigma_w = 0.00165, 0.28
-    # every component perturbed, the drive's omega too: larger heading errors to correct
-    sc.noise.perturb_zero_commands = True
     r = ScanRenderer(sc, tmp_path_factory.mktemp("scan"))
     return sc, r, r.scan(np.array(sc.robot.start))
 

@@ -4,6 +4,7 @@ import copy
 import numpy as np
 import pytest
 
+from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import Scenario
 from nbvs_drake.motion import rollout, wrap_angle
 from nbvs_drake.planning.rrt import Tree, rrt_ext_ext, weighted_dist
@@ -100,8 +101,7 @@ def test_ort_returns_a_vertex_at_least_as_good_as_the_roots_children(kin, first_
     from nbvs_drake.planning import PlanRequest, make_planner
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
-    sc.planner.strategy = "ort"
-    sc.planner.ort_vertices = 300
+    sc = _set(sc, "planner.strategy=!Ort {vertices: 300}")
     pl = make_planner(sc, kin)
     res = pl.plan(PlanRequest(omap, np.array(sc.robot.start), np.random.default_rng(1)))
     assert res.stages["vertices"] == 300
@@ -119,8 +119,7 @@ def test_view_sampling_ik_states_look_at_unknown_clusters(kin, first_scan_map):
     from nbvs_drake.planning import PlanRequest, make_planner
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
-    sc.planner.strategy = "view_sampling"
-    sc.planner.view_poses = 20
+    sc = _set(sc, "planner.strategy=!ViewSampling {poses: 20}")
     pl = make_planner(sc, kin)
     q, tried = pl.generator.generate(np.random.default_rng(3), omap)
     assert tried >= 20 and len(q) >= 5
@@ -145,7 +144,7 @@ def test_batched_tree_growth_checks_edges_as_one_at_a_time(kin, first_scan_map):
     from nbvs_drake.planning.rrt import edge, extend, extend_batch
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
-    sc.planner.strategy = "ort"
+    sc = _set(sc, "planner.strategy=!Ort {}")
     pl = make_planner(sc, kin)
     obstacles = pl.obstacles.for_map(omap)
     rng = np.random.default_rng(4)

@@ -90,7 +90,7 @@ def ball_scene():
 @pytest.mark.parametrize("overlap_h", [0.0, None])
 def test_coarse_to_fine_ranking_has_an_exact_head_and_culls_only_views_that_score_nothing(ball_scene, overlap_h):
     sc, kin, omap, q = ball_scene
-    sc.planner.metric, sc.planner.coarse_stride, sc.planner.refine_views = "coverage", 0, 0
+    sc.planner.metric, sc.planner.evaluator.coarse_stride, sc.planner.evaluator.refine = "coverage", None, None
     exact_ev = ViewEvaluator(kin, sc)
     score = ranking_score(exact_ev, omap, "coverage", overlap_h, omap.unknown_count())
     exact = exact_ev.evaluate(omap, q)
@@ -98,7 +98,7 @@ def test_coarse_to_fine_ranking_has_an_exact_head_and_culls_only_views_that_scor
     np.testing.assert_array_equal(met0, exact)  # off: every view at ray_stride, the exact ranking
     np.testing.assert_array_equal(order0, np.argsort(-score(exact), kind="stable"))
 
-    sc.planner.coarse_stride = 6
+    sc.planner.evaluator.coarse_stride = 6
     ev = ViewEvaluator(kin, sc)
     met, order = ev.evaluate_ranked(omap, q, score)
     assert sorted(order) == list(range(len(q)))

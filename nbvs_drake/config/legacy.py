@@ -235,7 +235,8 @@ def is_old_setting(key: str, value: str = "") -> bool:
     parts = key.split(".")
     if len(parts) == 2 and parts[1] in _OLD_ONLY.get(parts[0], ()):
         return True
-    return len(parts) == 2 and parts[0] == "planner" and parts[1] in _OLD_WORDS
+    return (len(parts) == 2 and parts[0] == "planner" and parts[1] in _OLD_WORDS
+            and not value.strip().startswith(("!", "{")))
 
 
 def _copy(cls, old):

@@ -18,6 +18,13 @@ A definition (all keys but `name`, `factors` and `seeds` optional)::
         levels:
           - {label: DU-MU, scenario: teapot_du_mu, x: 1}   # x: position in a `versus` figure
           - {label: EU-MU, scenario: teapot_eu_mu, seeds: [1, 2, 3, 4, 5]}  # its own seeds
+      - name: planner
+        levels:
+          - {label: paper}
+          - {label: nbvs, set: [planner.metric=coverage]}
+          - {label: nbvs_fine, from: nbvs, set: [localisation.fine_stage=true]}  # nbvs's, then its own
+    skip:                        # cells not run (a level's label or a list of them per factor)
+      - {approach: DU-MU, planner: [nbvs_fine]}
     seeds: [1, 2, 3]
     metrics:   # per-run values (summary.json keys, derived keys; see aggregate.py)
       - {name: coverage, key: coverage, scale: 100, unit: "%", stats: [mean, std, max]}
@@ -150,11 +157,22 @@ def check_definition(d: dict) -> dict:
         seen.add(f["name"])
         labels = [str(lv.get("label", "")) for lv in f["levels"]]
         need(all(labels) and len(set(labels)) == len(labels), f"factor {f['name']}: levels need distinct labels")
-        for lv in f["levels"]:
+        for i, lv in enumerate(f["levels"]):
             need(isinstance(lv.get("set", []), list), f"factor {f['name']} level {lv['label']}: set must be a list")
+            if lv.get("from") is not None:
+                need(str(lv["from"]) in labels[:i],
+                     f"factor {f['name']} level {lv['label']}: from {lv['from']!r} names no earlier level")
             ls = lv.get("seeds")
             need(ls is None or (isinstance(ls, list) and ls and all(isinstance(x, int) for x in ls)),
                  f"factor {f['name']} level {lv['label']}: seeds must be a non-empty list of integers")
+    for sk in d.get("skip") or []:
+        need(isinstance(sk, dict) and sk, f"each skip entry maps factors to levels, got {sk!r}")
+        for fname, want in sk.items():
+            f = next((f for f in factors if f["name"] == fname), None)
+            need(f is not None, f"skip names no factor {fname!r}")
+            want = want if isinstance(want, list) else [want]
+            unknown = sorted(set(map(str, want)) - {str(lv["label"]) for lv in f["levels"]})
+            need(not unknown, f"skip: factor {fname} has no levels {unknown}")
     seeds = d.get("seeds")
     need(isinstance(seeds, list) and seeds and all(isinstance(s, int) for s in seeds),
          "seeds must be a list of integers")
@@ -209,6 +227,8 @@ def resolve(d: dict, quick: bool = False, seeds=None) -> dict:
     """The definition as it will run: the quick section applied (seeds, levels, overrides
     appended after every level's), `seeds` (a list) replacing the seeds."""
     r = copy.deepcopy(d)
+    for f in r.get("factors") or []:  # each level's `from` resolved, so that filtering keeps its settings
+        f["levels"] = [resolved_level(f, lv) for lv in f["levels"]]
     r["quick"] = bool(quick)
     q = d.get("quick") or {}
     r["extra_set"] = list(q.get("set") or []) if quick else []
@@ -232,13 +252,51 @@ def resolve(d: dict, quick: bool = False, seeds=None) -> dict:
     return r
 
 
+def _parent(factor: dict, level: dict):
+    if level.get("from") is None:
+        return None
+    return next(lv for lv in factor["levels"] if str(lv["label"]) == str(level["from"]))
+
+
+def level_set(factor: dict, level: dict) -> list:
+    """A level's overrides: those of the level it starts `from` (recursively), then its own."""
+    parent = _parent(factor, level)
+    return (level_set(factor, parent) if parent else []) + list(level.get("set") or [])
+
+
+def resolved_level(factor: dict, level: dict) -> dict:
+    """A level with its `from` resolved: the parent's scenario and seeds unless it names its
+    own, the parent's overrides before its own."""
+    parent = _parent(factor, level)
+    out = {k: v for k, v in level.items() if k != "from"}
+    if parent is not None:
+        for k in ("scenario", "seeds"):
+            v = resolved_level(factor, parent).get(k)
+            if k not in out and v is not None:
+                out[k] = v
+    out["set"] = level_set(factor, level)
+    return out
+
+
+def _skipped(r: dict, labels: dict) -> bool:
+    for sk in r.get("skip") or []:
+        if all(str(labels.get(f)) in {str(x) for x in (w if isinstance(w, list) else [w])} for f, w in sk.items()):
+            return True
+    return False
+
+
 def cells(r: dict) -> list[dict]:
-    """Every combination of levels, in definition order: [{factor: level dict}]."""
+    """Every combination of levels but the skipped ones, in definition order: [{factor: level
+    dict}], each level's `set` resolved through its `from`."""
     factors = r.get("factors") or []
     if not factors:
         return [{}]
-    return [dict(zip([f["name"] for f in factors], combo))
-            for combo in itertools.product(*[f["levels"] for f in factors])]
+    out = []
+    for combo in itertools.product(*[f["levels"] for f in factors]):
+        combo = {f["name"]: resolved_level(f, lv) for f, lv in zip(factors, combo)}
+        if not _skipped(r, _labels(combo)):
+            out.append(combo)
+    return out
 
 
 def cell_label(levels: dict) -> str:

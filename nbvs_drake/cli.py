@@ -97,6 +97,11 @@ def _cmd_experiment(args):
         raise SystemExit(1)
 
 
+def _cmd_config_reference(args) -> None:
+    from .config.reference import write_reference
+    print(write_reference(Path(args.out)))
+
+
 def main(argv=None) -> int:
     from .resources import builtin_scenarios
     ap = argparse.ArgumentParser(prog="nbvs", description="Next-best-view/state planning on a Drake diagram")
@@ -161,6 +166,9 @@ def main(argv=None) -> int:
                    help="run records (small files to keep in git): restore the runs recorded in "
                         "DIR/NAME/ that OUT lacks before running, record every finished run there")
     e.set_defaults(func=_cmd_experiment)
+    c = sub.add_parser("config-reference", help="write the configuration reference (docs/configuration.md)")
+    c.add_argument("--out", default="docs/configuration.md", help="the markdown file (default: docs/configuration.md)")
+    c.set_defaults(func=_cmd_config_reference)
     args = ap.parse_args(argv)
     try:
         args.func(args)

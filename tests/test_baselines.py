@@ -182,9 +182,9 @@ def test_baselines_with_the_expected_utility_as_a_feasibility_check(kin, first_s
 @pytest.mark.parametrize("setting, message", [
     ("planner.strategy=nearest", "planner.strategy must be one of random_sampling, ort, view_sampling, "
                                  "view_circle, random_views, oracle, got 'nearest'"),
-    ("planner.circle_views=1", "planner.circle_views must be >= 2"),
-    ("planner.circle_range=-0.5", "planner.circle_range must be 0 (automatic) or > 0"),
-    ("planner.circle_height=0.3", "planner.circle_height must be 0 (automatic) or above the table top"),
+    ("planner.strategy=!ViewCircle {views: 1}", "planner.strategy.views must be >= 2"),
+    ("planner.strategy=!ViewCircle {range: -0.5}", "planner.strategy.range must be > 0 (m) or null"),
+    ("planner.strategy=!ViewCircle {height: 0.3}", "planner.strategy.height must be above the table top"),
 ])
 def test_baseline_settings_are_validated(setting, message):
     with pytest.raises(ScenarioError) as e:
@@ -193,7 +193,7 @@ def test_baseline_settings_are_validated(setting, message):
 
 
 @pytest.mark.parametrize("settings, message", [
-    (["planner.circle_range=0.5"], "planner.circle_range 0.5 m puts the view circle inside W_box"),
+    (["planner.circle_range=0.5"], "planner.strategy.range 0.5 m puts the view circle inside W_box"),
     (["mission.stop_min_surface=0.01"], "mission.stop_min_surface/stop_min_utility stop on the best candidate's"),
     (["mission.stop_min_utility=0.01"], "mission.stop_min_surface/stop_min_utility stop on the best candidate's"),
 ])

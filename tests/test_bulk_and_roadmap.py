@@ -233,7 +233,7 @@ def test_an_edge_through_space_found_occupied_is_not_used(kin, clutter):
 def test_motion_planner_setting_is_checked():
     with pytest.raises(ScenarioError, match="planner.motion_planner"):
         load_scenario(settings=["planner.motion_planner=prm"])
-    assert load_scenario("cluttered_room").planner.motion_planner == "roadmap"
+    assert isinstance(load_scenario("cluttered_room").planner.motion_planner, Roadmap)
 
 
 def test_numba_tree_growth_grows_the_python_growths_tree(kin):

@@ -178,23 +178,23 @@ def test_starts_where_the_robot_cannot_stand_are_dropped_with_eu_free_start():
 
 
 def test_the_registered_spread_the_rollouts_start_from_is_the_scenarios():
-    """planner.eu_registered_sigma is the spread of a registered belief that verified views'
+    """localisation.verified_views.registered_sigma is the spread of a registered belief that verified views'
     rollouts (each leg after a frame, the recovery paths) start from: by default
     motion.REGISTERED_SIGMA; a scenario may set what its registrations measured."""
     from nbvs_drake.config import load_scenario
     from nbvs_drake.errors import ScenarioError
     from nbvs_drake.motion import REGISTERED_SIGMA
     from nbvs_drake.planning.utility import ExpectedUtilityScore
-    sc = load_scenario("cluttered_room")
-    assert sc.planner.eu_registered_sigma == list(REGISTERED_SIGMA)
+    sc = load_scenario("cluttered_room", settings=["localisation.verified_views={}"])
+    assert sc.localisation.verified_views.registered_sigma == list(REGISTERED_SIGMA)
     np.testing.assert_allclose(ExpectedUtilityScore(sc, None, None, None).registered_cov(),
                                np.diag(np.square(REGISTERED_SIGMA)))
-    sc = load_scenario("cluttered_room", settings=["planner.eu_registered_sigma=[0.002, 0.003, 0.004]"])
+    sc = load_scenario("cluttered_room", settings=["localisation.verified_views={registered_sigma: [0.002, 0.003, 0.004]}"])
     eu = ExpectedUtilityScore(sc, None, None, None)
     belief = np.diag([1e-4, 2e-4, 3e-4])
     np.testing.assert_allclose(eu.registered_cov(belief), belief + np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2]))
     turn = (sc.noise.sigma_w * sc.robot.control_dt) ** 2  # mission.leg_turns: one step of corrective turn
     sc.localisation.verified_views.legs = Legs(after_turns=True)
     np.testing.assert_allclose(eu.leg_cov(), np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2 + turn]))
-    with pytest.raises(ScenarioError, match="eu_registered_sigma"):
-        load_scenario("cluttered_room", settings=["planner.eu_registered_sigma=[0.01, -1, 0.01]"])
+    with pytest.raises(ScenarioError, match="localisation.verified_views.registered_sigma"):
+        load_scenario("cluttered_room", settings=["localisation.verified_views={registered_sigma: [0.01, -1, 0.01]}"])

@@ -139,6 +139,23 @@ def _tags_along(scenario: Scenario, parts: list[str]) -> list[str | None] | None
     return tags
 
 
+def _refuse_other_variant(scenario: Scenario, parts: list[str], setting: str) -> None:
+    """Raises when the dotted path names a field of a variant other than the current one
+    (an untagged mapping would silently switch to the first variant)."""
+    obj = scenario
+    for i, k in enumerate(parts[:-1]):
+        if not dc.is_dataclass(obj) or not any(f.name == k for f in dc.fields(obj)):
+            return
+        t = _field_type(type(obj), k)
+        obj = getattr(obj, k)
+        alts = [a for a in typing.get_args(t) if a is not type(None)]
+        nxt = parts[i + 1]
+        if len(alts) > 1 and dc.is_dataclass(obj) and not any(f.name == nxt for f in dc.fields(obj)):
+            where = ".".join(parts[:i + 1])
+            raise ScenarioError(f"setting {setting!r}: {where} is !{type(obj).__name__}, which has no field {nxt!r} "
+                                f"(choose the variant: {where}=!Name {{...}})")
+
+
 def apply_setting(scenario: Scenario, setting: str) -> Scenario:
     """A copy of `scenario` with one "dotted.key=value" setting applied (the value is YAML, a
     tag picks a variant: "planner.utility=!Expected {samples: 100}"), read through the same
@@ -160,6 +177,7 @@ def apply_setting(scenario: Scenario, setting: str) -> Scenario:
     if tags is None:
         if optional:
             return scenario
+        _refuse_other_variant(scenario, parts, setting)
         tags = [None] * (len(parts) - 1)
     text = "".join(f"{'  ' * i}{k}:{' ' + t if t else ''}\n" for i, (k, t) in enumerate(zip(parts[:-1], tags)))
     text += f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}\n"

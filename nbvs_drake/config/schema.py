@@ -652,9 +652,9 @@ class Scenario:
     """One mission: the world, the perception, the planner and the mission's limits. `preset`
     names the preset the file starts from (config/presets/); the file's sections are merged
     over it."""
-    name: str = "default"
-    seed: int = 0
-    preset: Optional[str] = None
+    name: str = "default"  #: the scenario's name (in reports)
+    seed: int = 0  #: every random draw of the run derives from it: same seed, same result
+    preset: Optional[str] = None  #: the preset the file starts from (config/presets/: paper, nbvs, nbvs_noise, nbvs_room)
     robot: RobotConfig = dc.field(default_factory=RobotConfig)
     scene: SceneConfig = dc.field(default_factory=SceneConfig)
     sensor: SensorConfig = dc.field(default_factory=SensorConfig)

@@ -1,0 +1,119 @@
+"""The nested scenario schema: presets, tagged variants, settings, the migration of the old flat
+schema, the generated reference, and each preset held equal to the experiment level it names."""
+import gzip
+import json
+from pathlib import Path
+
+import pytest
+
+from nbvs_drake.config import (Expected, Hrt, Ort, Roadmap, ScenarioError, apply_setting, load_scenario,
+                               preset_names, preset_scenario, scenario_from_text, settings_of)
+from nbvs_drake.config.legacy import from_old, migrate, to_old
+from nbvs_drake.config.reference import reference
+from nbvs_drake.experiments.definition import expand, load_definition, resolve
+from nbvs_drake.resources import builtin_scenarios
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _same(a, b, ignore=("name", "seed")):
+    x, y = settings_of(a), settings_of(b)
+    for k in ignore:
+        x.pop(k, None), y.pop(k, None)
+    return {k: (x.get(k), y.get(k)) for k in x.keys() | y.keys() if x.get(k) != y.get(k)}
+
+
+def test_the_configuration_reference_is_current():
+    """docs/configuration.md is what `nbvs config-reference` writes from the schema."""
+    assert (ROOT / "docs" / "configuration.md").read_text() == reference(), \
+        "docs/configuration.md is stale: run `nbvs config-reference`"
+
+
+@pytest.mark.parametrize("preset, definition, levels", [
+    ("nbvs_noise", "motion_noise", {"object": "bunny", "approach": "EU-MU", "planner": "nbvs_face"}),
+    ("nbvs_room", "clutter", {"utility": "EU", "planner": "nbvs_face"}),
+])
+def test_a_scenario_from_a_preset_with_only_the_object_set_is_its_experiment_level(tmp_path, preset, definition,
+                                                                                  levels):
+    """A user under noise starts from the preset and sets only the object: the run is the one
+    the experiment level measured (motion_noise nbvs_face EU-MU bunny seed 1: 0.926475;
+    clutter nbvs_face EU bunny seed 1: 0.8625)."""
+    f = tmp_path / "mine.yaml"
+    f.write_text(f"name: mine\nseed: 1\npreset: {preset}\nscene:\n  object: {{kind: bunny}}\n")
+    mine = load_scenario(f)
+    run = next(r for r in expand(resolve(load_definition(definition))) if r.levels == levels and r.seed == 1)
+    assert _same(mine, run.resolve()) == {}
+
+
+def test_the_built_in_noise_scenarios_are_their_presets():
+    for name, preset in (("teapot_eu_mu_nbvs", "nbvs_noise"), ("cluttered_room_nbvs", "nbvs_room"),
+                         ("default", "nbvs")):
+        sc = load_scenario(name)
+        assert sc.preset == preset
+        assert _same(sc, preset_scenario(preset), ignore=("name", "seed", "scene.object.size")) == {}
+
+
+@pytest.mark.parametrize("name", sorted(builtin_scenarios()))
+def test_the_old_flat_schema_round_trips(name):
+    """Every built-in scenario, written in the old flat schema and migrated back, is itself."""
+    sc = load_scenario(name)
+    back = from_old(to_old(sc))
+    back.preset = sc.preset
+    assert _same(sc, back, ignore=()) == {}
+
+
+def test_an_old_record_loads_through_the_migration():
+    """A record written at 79445c7 (the old flat scenario.yaml) loads with its meaning: the
+    verified views, legs after turns, landmarks and the room's registration spread."""
+    rec = json.loads(gzip.decompress((ROOT / "docs/records/clutter/EU-nbvs_face_s1.json.gz").read_bytes()))
+    assert "verify_views: true" in rec["scenario_yaml"]  # the old schema
+    sc = scenario_from_text(rec["scenario_yaml"])
+    vv = sc.localisation.verified_views
+    assert vv is not None and vv.legs.after_turns and vv.recovery_rollouts == 500 and vv.refine_scan
+    assert vv.landmarks.occlusion and vv.landmarks.facing and vv.registered_sigma == [0.002] * 3
+    assert isinstance(sc.planner.utility, Expected) and sc.planner.utility.free_start
+    assert isinstance(sc.planner.motion_planner, Roadmap) and sc.planner.obstacles.base_clearance == 0.15
+    assert _same(sc, load_scenario("cluttered_room_nbvs", seed=1, settings=["scene.object.kind=bunny"]),
+                 ignore=("name",)) == {}
+
+
+def test_old_settings_and_documents_migrate():
+    sc = load_scenario("teapot_du", settings=["planner.hrt_a=2", "planner.strategy=ort", "planner.ort_vertices=300"])
+    assert sc.planner.evaluator == Hrt(a=2, stride=2) and sc.planner.strategy == Ort(vertices=300)
+    assert migrate("planner:\n  utility: eu\n  eu_samples: 7\n").planner.utility.samples == 7
+    with pytest.raises(ScenarioError, match="mission.merge_frames was removed"):
+        migrate("mission:\n  merge_frames: false\n")
+
+
+def test_settings_reach_into_the_current_variant():
+    sc = load_scenario("teapot_du", settings=["planner.evaluator=!Hrt {a: 2}", "planner.evaluator.a=3"])
+    assert sc.planner.evaluator == Hrt(a=3, stride=2)
+    with pytest.raises(ScenarioError, match="coarse_stride"):  # a field of another variant
+        apply_setting(sc, "planner.evaluator.coarse_stride=6")
+    assert apply_setting(sc, "?planner.evaluator.coarse_stride=6").planner.evaluator == Hrt(a=3, stride=2)
+    sc = load_scenario("teapot_eu_mu", settings=["?planner.utility.samples=20"])
+    assert sc.planner.utility.samples == 20
+    assert load_scenario("teapot_du", settings=["?planner.utility.samples=20"]).planner.utility == \
+        load_scenario("teapot_du").planner.utility
+
+
+def test_every_preset_loads_and_a_bad_one_is_named(tmp_path):
+    assert set(preset_names()) >= {"paper", "nbvs", "nbvs_noise", "nbvs_room"}
+    for n in preset_names():
+        preset_scenario(n).check()
+    f = tmp_path / "x.yaml"
+    f.write_text("preset: fancy\n")
+    with pytest.raises(ScenarioError, match="unknown preset 'fancy'"):
+        load_scenario(f)
+
+
+def test_a_level_from_another_and_skipped_cells():
+    d = load_definition("motion_noise")
+    runs = expand(resolve(d))
+    face = next(r for r in runs if r.levels["planner"] == "nbvs_face")
+    sight = next(r for r in runs if r.levels["planner"] == "nbvs_sight" and r.levels["approach"] == face.levels[
+        "approach"] and r.levels["object"] == face.levels["object"] and r.seed == face.seed)
+    assert face.overrides == sight.overrides + ["localisation.verified_views.landmarks.facing=true"]
+    assert not any(r.levels["approach"] == "DU" and r.levels["planner"] in ("nbvs_refine", "nbvs_sight", "nbvs_face")
+                   for r in runs)
+    assert any(r.levels["approach"] == "DU" and r.levels["planner"] == "nbvs_fine" for r in runs)

@@ -543,6 +543,7 @@ def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scena
                if r.seed == 3 and all(r.levels[k] == v for k, v in levels.items()))
     measured = load_scenario(run.scenario, seed=run.seed, settings=run.overrides)
     builtin = load_scenario(scenario, seed=3, settings=extra)
-    measured.name = builtin.name
+    measured.name, measured.preset = builtin.name, builtin.preset
     assert measured == builtin
-    assert builtin.mission.landmark_occlusion and builtin.mission.landmark_facing and builtin.mission.verify_views
+    vv = builtin.localisation.verified_views
+    assert vv is not None and vv.landmarks.occlusion and vv.landmarks.facing

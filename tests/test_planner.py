@@ -298,9 +298,8 @@ def test_planner_with_expected_utility(kin, first_scan_map):
 
 def test_rollout_utility_with_and_without_the_registration_factor(planner, first_scan_map):
     """state_utility: with reg (Vasquez-Gomez et al. 2017's g) a state whose simulated scan
-    overlaps the known surface by h or less scores 0; without it
-    (planner.eu_rollout_registration: false) every state keeps info * dist. States that pass
-    the filter score the same."""
+    overlaps the known surface by h or less scores 0; without it every state keeps info *
+    dist. States that pass the filter score the same."""
     sc, omap = first_scan_map
     sc = planner.sc
     q, _ = planner.generator.generate(np.random.default_rng(3), omap)  # states that look at W_box

@@ -290,7 +290,7 @@ def test_the_residual_cap_is_what_a_point_on_new_surface_costs():
 
 
 def test_the_residual_cap_is_on_with_verified_views_unless_set():
-    assert load_scenario("teapot_eu_mu").mission.residual_cap() == 0.0  # the paper's settings
-    assert load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"]).mission.residual_cap() == 0.01
-    assert load_scenario("teapot_eu_mu", settings=["mission.verify_views=true",
-                                                   "mission.registration_residual_cap=0"]).mission.residual_cap() == 0.0
+    assert load_scenario("teapot_eu_mu").localisation.cap() == 0.0  # the paper's settings
+    assert load_scenario("teapot_eu_mu", settings=["localisation.verified_views={}"]).localisation.cap() == 0.01
+    assert load_scenario("teapot_eu_mu", settings=["localisation.verified_views={}",
+                                                   "localisation.residual_cap=0"]).localisation.cap() == 0.0

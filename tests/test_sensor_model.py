@@ -154,7 +154,7 @@ def test_the_view_evaluator_uses_the_sensors_rays(kin):
     from nbvs_drake.planning.views import ViewEvaluator
     sc = load_scenario()
     ev = ViewEvaluator(kin, sc)
-    d, tn, tf = ray_directions(sc.sensor, sc.planner.ray_stride)
+    d, tn, tf = ray_directions(sc.sensor, sc.planner.evaluator.stride)
     np.testing.assert_array_equal(ev.dirs, d)
     np.testing.assert_array_equal(ev.t_near, tn)
     np.testing.assert_array_equal(ev.t_far, tf)

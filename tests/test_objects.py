@@ -132,7 +132,7 @@ def test_teapot_unchanged():
     # 0.40, turned by yaw_deg (0), set on the table at xy; must agree bit for bit
     sc = load_scenario(None)
     o = sc.scene.object
-    assert (o.kind, o.up, o.rpy_deg, o.yaw_deg) == ("teapot", "", [0.0, 0.0, 0.0], 0.0)
+    assert (o.kind, o.up, o.rpy_deg, o.yaw_deg) == ("teapot", None, [0.0, 0.0, 0.0], 0.0)
     mesh = build_object(sc)
     tp = tessellate_teapot(12)
     V = tp.vertices.copy()
@@ -186,7 +186,7 @@ def test_short_dragon_run_reconstructs_it(tmp_path):
     from nbvs_drake.config import apply_setting
     from nbvs_drake.mission import run_mission
     sc = apply_setting(small_scenario(seed=1, scans=2, n_candidates=500, gt_points=4000), "scene.object.kind=dragon")
-    sc.scene.object.size = -1
+    sc.scene.object.size = None
     s = run_mission(validate(sc), tmp_path / "run", verbose=False)
     assert s["scans"] == 2 and s["collisions"] == 0
     assert s["coverage_by_scan"][1] > s["coverage_by_scan"][0] > 0.15

@@ -154,7 +154,7 @@ def test_the_motion_planner_drives_around_the_table_to_the_far_side(planner, fir
     through the table; a detour reaches it without the RRT (the default has none)."""
     from nbvs_drake.planning.motion_planner import PlanningObstacles
     sc, omap = first_scan_map
-    assert sc.planner.rrt_max_nodes == 0
+    assert sc.planner.rrt_max_nodes() == 0
     obst = PlanningObstacles(sc, planner.motion.kin).for_map(omap)
     q0 = np.array(sc.robot.start)
     q1 = np.array([1.45, 0.0, np.pi] + list(q0[3:]))  # the start's pose mirrored across the table

@@ -177,7 +177,7 @@ def test_landmark_occlusion_picks_a_relocalisation_view_that_sees_the_table(tmp_
     sees almost no landmark. Measured: 1274 against 302 points, scores 0.17 and 0.06."""
     from nbvs_drake.robot import RobotKinematics
     from nbvs_drake.scanning import ScanRenderer
-    sc = load_scenario("cluttered_room", settings=["mission.landmark_occlusion=true"])
+    sc = load_scenario("cluttered_room", settings=["localisation.verified_views={landmarks: {occlusion: true}}"])
     kin = RobotKinematics(sc.robot.urdf)
     solids = landmark_solids(sc)
     assert solids is not None and landmark_solids(load_scenario("cluttered_room")) is None

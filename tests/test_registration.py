@@ -72,6 +72,16 @@ def _noisy_second_scan(sc, r, draw: int, angle: float):
     return q0, U, states, qt, qb, P2 @ M[:3, :3].T + M[:3, 3], Xb
 
 
+@pytest.fixture(autouse=True)
+def _every_component_perturbed(request, monkeypatch):
+    """The tests on `renderer` perturb every control component, the drive's omega too (larger
+    heading errors to correct than Table 4's rule, which executes a zero command exactly)."""
+    if "renderer" in request.fixturenames:
+        import nbvs_drake.motion as motion
+        monkeypatch.setattr(motion, "control_sigmas", lambda noise, controls: np.broadcast_to(
+            motion.noise_sigmas(noise), np.shape(controls)).copy())
+
+
 @pytest.fixture(scope="module")
 def renderer(tmp_path_factory):
     from nbvs_drake.scanning import ScanRenderer

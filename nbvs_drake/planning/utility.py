@@ -18,7 +18,7 @@ from typing import Iterable
 
 import numpy as np
 
-from ..config import Scenario
+from ..config import Expected, Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..motion import plan_legs, plans_in_legs
 from . import bulk
@@ -54,11 +54,14 @@ class ExpectedUtilityScore:
         #: seconds spent checking rollouts for collision (reset by `select_best` per plan)
         self.checks_s = 0.0
         p = sc.planner
-        need = sample_count_bound(p.utility.alpha, p.utility.gamma)
-        if p.utility.samples < need:
+        #: the rollouts' settings: the expected utility's, or its defaults where the scorer
+        #: only checks paths (the recovery paths of a deterministic planner)
+        self.u = p.utility if isinstance(p.utility, Expected) else Expected()
+        need = sample_count_bound(self.u.alpha, self.u.gamma)
+        if self.u.samples < need:
             import warnings
-            warnings.warn(f"planner.utility.samples = {p.utility.samples} is below the eq. 18 bound {need} for "
-                          f"alpha = {p.utility.alpha}, gamma = {p.utility.gamma}: collisions may go undetected", stacklevel=2)
+            warnings.warn(f"planner.utility.samples = {self.u.samples} is below the eq. 18 bound {need} for "
+                          f"alpha = {self.u.alpha}, gamma = {self.u.gamma}: collisions may go undetected", stacklevel=2)
 
     def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float,
                       registration: bool = True) -> np.ndarray:
@@ -155,8 +158,8 @@ class ExpectedUtilityScore:
         states (m+1, 8); k, max_collision_rate and free_start (planner.utility.free_start) default
         to the planner's."""
         p = self.sc.planner
-        k = p.utility.samples if k is None else k
-        rate = p.utility.max_collision_rate if max_collision_rate is None else max_collision_rate
+        k = self.u.samples if k is None else k
+        rate = self.u.max_collision_rate if max_collision_rate is None else max_collision_rate
         # the nominal path's escape from a colliding start
         skip = (self.motion.escape_prefix(states, obstacles) or 0) if escape else 0
         verdicts = self._rollout_verdicts(states[1:], obstacles)
@@ -179,9 +182,9 @@ class ExpectedUtilityScore:
         return expected_utility(
             states[0], controls, self.sc.robot.control_dt, k, self.sc.noise, request.rng,
             free, final_utility,
-            weighting=p.utility.weighting, max_collision_rate=rate, start_cov=start_cov,
+            weighting=self.u.weighting, max_collision_rate=rate, start_cov=start_cov,
             block_free=block_free if self.motion.bulk_checks else None,
-            start_free=obstacles.free if (p.utility.free_start if free_start is None else free_start) else None)
+            start_free=obstacles.free if (self.u.free_start if free_start is None else free_start) else None)
 
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):
         """The utility of a rollout's final state when views are verified (mission.verify_views,

@@ -12,7 +12,7 @@ from .kernel_cache import drop_stale
 
 drop_stale()  # before any kernel loads from numba's cache (kernel_cache.py says why)
 
-from .api import RunResult, reconstruct  # noqa: E402
+from .app.api import RunResult, reconstruct  # noqa: E402
 
 __version__ = "0.1.0"
 

@@ -1,7 +1,7 @@
 """Keeps numba's on-disk cache of the package's kernels consistent with their sources.
 
 numba (`cache=True`) keys a cached kernel on its own source file only: a kernel in
-planning/bulk.py that calls or inlines one in planning/clearance.py keeps its cached machine
+planning/path_verdicts.py that calls or inlines one in planning/certificate.py keeps its cached machine
 code after clearance.py changes (a `git pull` or an edit in a source checkout), and would run
 the old callee. `drop_stale` stamps the kernel modules together (each one's size and
 modification time, what numba stamps one file with) and, when the stamp differs from the one

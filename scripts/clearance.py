@@ -22,7 +22,7 @@ import numpy as np
 def run_clearance(run: Path, influence: float = 1.0) -> dict:
     from nbvs_drake.config import load_scenario
     from nbvs_drake.planning.collision import CollisionModel
-    from nbvs_drake.robot import RobotKinematics
+    from nbvs_drake.world.robot import RobotKinematics
 
     sc = load_scenario(run / "scenario.yaml")
     kin = RobotKinematics(sc.robot.urdf)

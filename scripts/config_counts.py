@@ -52,8 +52,8 @@ def main():
 
     def leaf(k):
         return k.rsplit(".", 1)[-1]
-    level_only = sorted(b for b in bools_off
-                        if not any(leaf(k) == leaf(b) for k in on_somewhere) and any(leaf(k) == leaf(b) for k in on_in_levels))
+    level_only = sorted(b for b in bools_off if not any(leaf(k) == leaf(b) for k in on_somewhere)
+                        and any(leaf(k) == leaf(b) for k in on_in_levels))
     repeats, total = 0, 0
     for p in DEFINITIONS_DIR.glob("*.yaml"):
         d = yaml.safe_load(p.read_text())

@@ -20,13 +20,13 @@ import tempfile
 
 import numpy as np
 
+from nbvs_drake.app.mission import run_mission
 from nbvs_drake.config import Oracle
 from nbvs_drake.experiments.definition import expand, load_definition, resolve
-from nbvs_drake.mission import run_mission
 from nbvs_drake.planning import make_planner
 from nbvs_drake.planning import random_sampling as rs
 from nbvs_drake.planning.candidates import free_candidates
-from nbvs_drake.robot import RobotKinematics
+from nbvs_drake.world.robot import RobotKinematics
 
 
 def main(obj: str, seed: int) -> None:

@@ -25,7 +25,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="folder for the PNGs (default: next to the html)")
     ap.add_argument("--size", default="1024x768", help="window size WxH")
     args = ap.parse_args(argv)
-    from nbvs_drake.screenshot import find_chromium, image_colours, screenshot_html
+    from nbvs_drake.outputs.screenshot import find_chromium, image_colours, screenshot_html
     html = Path(args.run)
     if html.is_dir():
         html = html / "replay.html"

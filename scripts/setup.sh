@@ -49,4 +49,4 @@ fi
 .venv/bin/python -m pip install -q -e ".[test]"
 .venv/bin/python -c "import pydrake, open3d, numba; print('setup: ok (drake, open3d', open3d.__version__ + ', numba', numba.__version__ + ')')"
 # compile the motion planner's numba kernels into numba's cache now, not in the first plan
-.venv/bin/python -m nbvs_drake.warmup
+.venv/bin/python -m nbvs_drake.app.warmup

@@ -26,10 +26,10 @@ import numpy as np
 
 def true_pose_coverage(run: Path) -> dict:
     from nbvs_drake.config import load_scenario
-    from nbvs_drake.evaluation import coverage
     from nbvs_drake.mapping.occupancy import OccupancyMap
-    from nbvs_drake.objects import build_object, ground_truth_points
-    from nbvs_drake.scanning import ScanRenderer
+    from nbvs_drake.perception.evaluation import coverage
+    from nbvs_drake.perception.scanning import ScanRenderer
+    from nbvs_drake.world.objects import build_object, ground_truth_points
 
     run = Path(run)
     sc = load_scenario(run / "scenario.yaml")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from nbvs_drake.config import Scenario, load_scenario
-from nbvs_drake.robot import RobotKinematics
+from nbvs_drake.world.robot import RobotKinematics
 
 
 @pytest.fixture(scope="session")
@@ -23,7 +23,7 @@ def first_scan_map():
     import tempfile
     from pathlib import Path
 
-    from nbvs_drake.diagram import build_mission_diagram
+    from nbvs_drake.app.diagram import build_mission_diagram
     sc = load_scenario()
     with tempfile.TemporaryDirectory() as tmp:
         md = build_mission_diagram(sc, Path(tmp), log=None)

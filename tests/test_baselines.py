@@ -11,10 +11,10 @@ import pytest
 from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import load_scenario
 from nbvs_drake.errors import ScenarioError
-from nbvs_drake.motion import path_length, rollout, wrap_angle
 from nbvs_drake.planning import PlanRequest, make_planner
 from nbvs_drake.planning.interface import FACTOR_NAMES
 from nbvs_drake.planning.views import director_ray_hits, registration_overlap
+from nbvs_drake.world.motion import path_length, rollout, wrap_angle
 
 #: the factors every strategy reports with the deterministic utility
 DU_FACTORS = set(FACTOR_NAMES) - {"eu"}
@@ -205,7 +205,7 @@ def test_baseline_combinations_that_make_no_sense_are_refused(settings, message)
 
 @pytest.mark.parametrize("strategy", ["view_circle", "random_views"])
 def test_baseline_reconstructs_end_to_end(tmp_path, strategy):
-    from nbvs_drake.cli import main
+    from nbvs_drake.app.cli import main
     out = tmp_path / strategy
     assert main(["reconstruct", "--out", str(out), "--quiet", "--set", f"planner.strategy={strategy}",
                  "--set", "mission.max_scans=3", "--set", "planner.n_candidates=300",

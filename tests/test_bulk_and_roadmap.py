@@ -1,4 +1,4 @@
-"""Collision checks in bulk (planning/bulk.py) and the mission roadmap (planning/roadmap.py):
+"""Collision checks in bulk (planning/path_verdicts.py) and the mission roadmap (planning/roadmap.py):
 the bulk verdicts never call free what Drake finds in collision (random and near-contact
 states, edges and noisy rollouts, in the cluttered room and with voxel obstacles); every path
 the roadmap gives is free by Drake's own check and reaches its goal; a goal that cannot be
@@ -12,48 +12,47 @@ import numpy as np
 import pytest
 from conftest import drake_free, near_contacts, random_states
 
-from nbvs_drake.config import Ort, Roadmap, RrtExtExt
-from nbvs_drake.config import load_scenario
+from nbvs_drake.config import Ort, Roadmap, RrtExtExt, load_scenario
 from nbvs_drake.errors import ScenarioError
-from nbvs_drake.motion import rollout, sample_control_noise, steer_together, wrap_angle
-from nbvs_drake.planning import bulk
+from nbvs_drake.planning import neighbours, path_verdicts, steer_kernels
 from nbvs_drake.planning.candidates import StateSampler
-from nbvs_drake.planning.clearance import (
+from nbvs_drake.planning.certificate import (
     COLLIDING,
     FREE,
     UNKNOWN,
-    _arm_motion_bound,
-    _free_margins,
-    _geometry_reach,
-    _pair_reach,
-    _reach,
-    _scratch,
+    arm_motion_bound,
+    free_margins,
+    geometry_reaches,
+    model_reach,
+    pair_reaches,
+    robot_scratch,
     unpack,
 )
 from nbvs_drake.planning.collision import CollisionModel
 from nbvs_drake.planning.motion_planner import MotionPlanner, ObstacleModel
 from nbvs_drake.planning.roadmap import GROWTH_SAMPLES
+from nbvs_drake.world.motion import rollout, sample_control_noise, steer_together, wrap_angle
 
 
 @nb.njit
 def _margins(q, F, I, H):
-    """clearance._free_margins at each state q[n]: (N, 3 + P + 2G) rows of m_env, m_self,
+    """certificate.free_margins at each state q[n]: (N, 3 + P + 2G) rows of m_env, m_self,
     radius, the pairs' clearances, the geometries' clearances and radii; and the motion bounds
-    (_reach, _pair_reach, _geometry_reach's per-joint reach)."""
+    (model_reach, pair_reaches, geometry_reaches's per-joint reach)."""
     model = unpack(F, I, H)
-    s = _scratch(model)
+    s = robot_scratch(model)
     P, G = model[19].shape[0], model[2].shape[0]
     out = np.empty((q.shape[0], 3 + P + 2 * G))
     pc, gc, gr = np.empty(P), np.empty(G), np.empty(G)
     for i in range(q.shape[0]):
-        out[i, 0], out[i, 1], out[i, 2] = _free_margins(q[i], model, s, pc, gc, gr)
+        out[i, 0], out[i, 1], out[i, 2] = free_margins(q[i], model, s, pc, gc, gr)
         out[i, 3:3 + P], out[i, 3 + P:3 + P + G], out[i, 3 + P + G:] = pc, gc, gr
-    return out, _reach(model), _pair_reach(model), _geometry_reach(model)[0]
+    return out, model_reach(model), pair_reaches(model), geometry_reaches(model)[0]
 
 
 @nb.njit
 def _arm_bound(a, b, reach):
-    return _arm_motion_bound(a, b, reach)
+    return arm_motion_bound(a, b, reach)
 
 
 @pytest.fixture(scope="module")
@@ -83,7 +82,7 @@ def test_bulk_states_and_edges_agree_withdrake_free(kin, world, request):
     rng = np.random.default_rng(3)
     a = q[: 2000][free][:300]
     b = kin.clip_arm(a + rng.normal(0, 0.4, a.shape))
-    verdict = model.bulk_edges(a, b, bulk.robot_params(sc.robot))
+    verdict = model.bulk_edges(a, b, steer_kernels.robot_params(sc.robot))
     for x, y, ve in zip(a, b, verdict):
         states = CollisionModel.interpolate(rollout(x, steer_together(x, y, sc.robot), sc.robot.control_dt))
         ok = bool(np.all(drake_free(model, states)))
@@ -94,14 +93,15 @@ def test_bulk_states_and_edges_agree_withdrake_free(kin, world, request):
 
 def test_numba_steering_is_the_motion_models(kin, clutter):
     sc, _ = clutter
-    rc, params = sc.robot, bulk.robot_params(sc.robot)
+    rc, params = sc.robot, steer_kernels.robot_params(sc.robot)
     q = random_states(kin, 60, seed=4)
     for a, b in zip(q[:30], q[30:]):
         c = steer_together(a, b, rc)
-        np.testing.assert_allclose(bulk.steer_together(a, b, *params), c, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(steer_kernels.steer_together(a, b, *params), c, rtol=0, atol=1e-12)
         s = rollout(a, c, rc.control_dt)
-        np.testing.assert_allclose(bulk.rollout(a, c, rc.control_dt), s, rtol=0, atol=1e-12)  # numpy's SIMD cos, sin
-        np.testing.assert_array_equal(bulk.interpolate(s, 0.02), CollisionModel.interpolate(s))
+        # numpy's SIMD cos, sin
+        np.testing.assert_allclose(steer_kernels.rollout(a, c, rc.control_dt), s, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(path_verdicts.interpolate(s, 0.02), CollisionModel.interpolate(s))
 
 
 def test_rollout_verdicts_agree_withdrake_free(kin, clutter):
@@ -123,7 +123,7 @@ def test_rollout_verdicts_agree_withdrake_free(kin, clutter):
         eps = sample_control_noise(rng, sc.noise, controls, 40)
         states = rollout(start, controls[None] + eps, sc.robot.control_dt)[:, 1:]
         c, r = cert.part_clearances(nominal[1:])
-        v = bulk.rollout_verdicts(np.ascontiguousarray(states), nominal[1:], c, r, *cert.model, model.counter)
+        v = path_verdicts.rollout_verdicts(np.ascontiguousarray(states), nominal[1:], c, r, *cert.model, model.counter)
         drake = drake_free(model, states.reshape(-1, 8)).reshape(v.shape)
         assert not np.any((v == FREE) & ~drake) and not np.any((v == COLLIDING) & drake)
         n_checked += v.size
@@ -237,7 +237,7 @@ def test_motion_planner_setting_is_checked():
 
 
 def test_numba_tree_growth_grows_the_python_growths_tree(kin):
-    """The ORT's batched growth in numba (bulk.tree_extensions) against rrt.extend_batch: the
+    """The ORT's batched growth in numba (tree_growth.tree_extensions) against rrt.extend_batch: the
     same parents, vertices equal to 1e-12 (numpy's SIMD cos and sin differ from libm's in the
     last bit), the same tree paths."""
     from nbvs_drake.planning.ort import ORTPlanner
@@ -305,7 +305,7 @@ def test_cluttered_room_mission_with_the_roadmap(tmp_path):
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
 def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
-    """clearance._free_margins: a state with margins (m, m_self) > 0 is FREE by the certificate,
+    """certificate.free_margins: a state with margins (m, m_self) > 0 is FREE by the certificate,
     and so is every state whose points moved less than m (the motion bound, with the base's turn
     weighted by the state's radius) and less than m_self relative to each other; near-contact
     states included."""
@@ -339,10 +339,10 @@ def test_a_free_margin_proves_every_state_within_it_free(kin, world, request):
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
 def test_each_pairs_and_geometrys_clearance_proves_every_state_within_it_free(kin, world, request):
-    """clearance._free_margins' per-pair and per-geometry clearances: states moved so that
-    every robot pair's relative motion bound (`_pair_reach`: only the joints between its two
+    """certificate.free_margins' per-pair and per-geometry clearances: states moved so that
+    every robot pair's relative motion bound (`pair_reaches`: only the joints between its two
     geometries) uses up 0.99 of that pair's clearance, and every geometry's own motion bound
-    (`_geometry_reach`, its own radius for the base's turn) 0.99 of its clearance to the
+    (`geometry_reaches`, its own radius for the base's turn) 0.99 of its clearance to the
     environment, are FREE by the certificate and by Drake, though many move further than the
     whole robot's bound against the least clearances would allow; near-contact states
     included."""
@@ -381,7 +381,7 @@ def test_each_pairs_and_geometrys_clearance_proves_every_state_within_it_free(ki
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
 def test_skipping_by_margins_gives_the_verdict_of_every_state(kin, world, request):
-    """bulk.path_verdict (states proved free by a neighbour's margin are not visited) against
+    """path_verdicts.path_verdict (states proved free by a neighbour's margin are not visited) against
     the certificate's verdict of every interpolated state, on steering edges from random and
     near-contact states; the undecided states it reports are exactly the certificate's UNKNOWN
     ones."""
@@ -397,7 +397,8 @@ def test_skipping_by_margins_gives_the_verdict_of_every_state(kin, world, reques
         if len(states) < 2:
             continue
         counter = np.zeros(1, np.int64)
-        v, allq, und = bulk.path_undecided(states, *model.certificate.model, 0.04, bulk.STRIDE, counter)
+        v, allq, und = path_verdicts.path_undecided(states, *model.certificate.model, 0.04, path_verdicts.STRIDE,
+                                                    counter)
         every = model.certificate.classify(allq)
         if every[0] != FREE:
             expected = UNKNOWN
@@ -437,7 +438,7 @@ def test_the_numba_director_ray_test_is_numpys(kin):
 
 
 def test_the_tree_grids_nearest_vertex_is_the_brute_forces():
-    """bulk.TreeGrid's ring search against rrt._nearest's scan: the same index, for trees
+    """neighbours.TreeGrid's ring search against rrt._nearest's scan: the same index, for trees
     grown in steps (vertices inserted as they come), vertices and targets outside the grid's
     bounds, and duplicate vertices (ties go to the lower index, as the scan's)."""
     from nbvs_drake.planning.rrt import _nearest
@@ -445,21 +446,21 @@ def test_the_tree_grids_nearest_vertex_is_the_brute_forces():
     w = np.array([10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     Q = np.concatenate([rng.uniform(-2.3, 2.3, (3000, 2)), rng.uniform(-np.pi, np.pi, (3000, 6))], axis=1)
     Q[2000:2100] = Q[1000:1100]  # duplicates
-    grid = bulk.TreeGrid([-1.9, 1.9], len(Q))
+    grid = neighbours.TreeGrid([-1.9, 1.9], len(Q))
     for n in (1, 2, 10, 300, 3000):
         grid.insert(Q, n)
         T = np.concatenate([rng.uniform(-2.5, 2.5, (400, 2)), rng.uniform(-np.pi, np.pi, (400, 6))], axis=1)
         T[:50] = Q[rng.integers(0, n, 50)]  # targets on vertices
         for t in T:
-            assert bulk._nearest_grid(Q, t, w, *grid.arrays) == _nearest(Q[:n], t, w)
+            assert neighbours._nearest_grid(Q, t, w, *grid.arrays) == _nearest(Q[:n], t, w)
 
 
 @pytest.mark.parametrize("world", ["clutter", "voxels"])
 def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_strided_walk(kin, world, request):
-    """bulk._walk in the ORT's leapfrog order (stride 0), from a start margin given or not,
+    """path_verdicts._walk in the ORT's leapfrog order (stride 0), from a start margin given or not,
     against the strided order (the first, the last, every 8th, the rest): the same verdict,
     and the same undecided states where it is UNKNOWN, on edges from free states towards random and near-contact
-    states; the margins it returns for the last state are the ones `_free_margins` computes
+    states; the margins it returns for the last state are the ones `free_margins` computes
     there (how many states each order visits is `nbvs bench collision`'s)."""
     sc, model = request.getfixturevalue(world)
     q = random_states(kin, 1500, seed=31)
@@ -469,13 +470,13 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
     a = q[free][:300]
     b = np.concatenate([kin.clip_arm(a[:150] + rng.normal(0, 0.5, (150, 8))), near[:150]])
     m = unpack(*model.certificate.model)
-    scratch = _scratch(m)
+    scratch = robot_scratch(m)
     seen = set()
     for x, y in zip(a, b):
         c = steer_together(x, y, sc.robot)
         if len(c) == 0:
             continue
-        allq = bulk.interpolate(rollout(x, c, sc.robot.control_dt), 0.04)
+        allq = path_verdicts.interpolate(rollout(x, c, sc.robot.control_dt), 0.04)
         start, last = _margins(allq[[0, -1]], *model.certificate.model)[0]
         n_m = model.certificate.margin_size
         out = {}
@@ -483,7 +484,7 @@ def test_the_leapfrog_walk_gives_the_verdicts_and_undecided_states_of_the_stride
             und = np.zeros(len(allq), bool)
             cnt = np.zeros(1, np.int64)
             end = np.empty(n_m)
-            v = bulk._walk(allq, m, scratch, stride, cnt, und, s0, end, bulk._bounds(m))
+            v = path_verdicts._walk(allq, m, scratch, stride, cnt, und, s0, end, path_verdicts._bounds(m))
             out[(stride, s0[0] > 0)] = (v, np.flatnonzero(und).tolist())
             if end[0] > 0:
                 np.testing.assert_allclose(end, last)

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from nbvs_drake.cli import main
+from nbvs_drake.app.cli import main
 from nbvs_drake.config import Scenario, load_scenario, resolve_sensor, validate
 from nbvs_drake.errors import MeshError
-from nbvs_drake.objects import build_object, tessellate_teapot
+from nbvs_drake.world.objects import build_object, tessellate_teapot
 
 
 def _cli_error(capsys, tmp_path, yaml_text, name="bad.yaml"):
@@ -168,7 +168,7 @@ def test_a_verbose_run_prints_its_scans_and_no_library_chatter(tmp_path):
     import subprocess
     import sys
     out = tmp_path / "run"
-    p = subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "reconstruct", "--out", str(out),
+    p = subprocess.run([sys.executable, "-m", "nbvs_drake.app.cli", "reconstruct", "--out", str(out),
                         "--set", "mission.max_scans=2", "--set", "planner.n_candidates=300",
                         "--set", "scene.gt_points=3000"], capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stderr[-2000:]

@@ -6,8 +6,19 @@ from pathlib import Path
 
 import pytest
 
-from nbvs_drake.config import (Expected, Hrt, Ort, Roadmap, ScenarioError, apply_setting, load_scenario,
-                               preset_names, preset_scenario, scenario_from_text, settings_of)
+from nbvs_drake.config import (
+    Expected,
+    Hrt,
+    Ort,
+    Roadmap,
+    ScenarioError,
+    apply_setting,
+    load_scenario,
+    preset_names,
+    preset_scenario,
+    scenario_from_text,
+    settings_of,
+)
 from nbvs_drake.config.legacy import from_old, migrate, to_old
 from nbvs_drake.config.reference import reference
 from nbvs_drake.experiments.definition import expand, load_definition, resolve

@@ -3,10 +3,10 @@ import numpy as np
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource
 
+from nbvs_drake.app.diagram import add_robot_and_scene
 from nbvs_drake.config import Scenario
-from nbvs_drake.diagram import add_robot_and_scene
-from nbvs_drake.sensor import clean_scan
 from nbvs_drake.systems.depth_camera import CameraPose, add_depth_camera
+from nbvs_drake.world.sensor import clean_scan
 
 
 def _camera_diagram(kin, q):
@@ -45,7 +45,7 @@ def test_depth_of_the_floor_seen_straight_down(kin):
 
 
 def test_depth_of_the_floor_at_45_degrees_pixel_by_pixel(kin, scenario):
-    from nbvs_drake.sensor import intrinsics
+    from nbvs_drake.world.sensor import intrinsics
     q = np.array([-1.7, 0.0, 0.0, 0.0, 0.6, 0.0, -np.pi / 4 - 0.6, 0.0])
     X = kin.camera_poses(q)[0]
     d, rgbd, _, _ = _camera_diagram(kin, q)

@@ -3,7 +3,7 @@ real camera and measured against their predicted covered-area gain."""
 import numpy as np
 
 from nbvs_drake.config import load_scenario
-from nbvs_drake.diagnostics import candidate_gains
+from nbvs_drake.outputs.diagnostics import candidate_gains
 
 
 def test_candidates_are_rendered_and_measured_against_their_prediction():

@@ -3,9 +3,9 @@ import json
 import pytest
 from conftest import small_scenario
 
+from nbvs_drake.app.mission import run_mission
 from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import load_scenario
-from nbvs_drake.mission import run_mission
 
 
 def _small(seed=0, scans=3):
@@ -126,7 +126,7 @@ def test_default_teapot_reconstruction(tmp_path):
 
 
 def test_wiring_picture(tmp_path):
-    from nbvs_drake.wiring import write_wiring
+    from nbvs_drake.outputs.wiring import write_wiring
     paths = write_wiring(load_scenario(), tmp_path / "w")
     dot = paths[0].read_text()
     for name in ("kinematic_plant", "noisy_velocity_controller", "depth_camera", "octree_mapper",
@@ -138,7 +138,7 @@ def test_wiring_picture(tmp_path):
                                                          ("random_sampling", "seed001", "voxels"),
                                                          ("view_sampling", "seed001", "wbox")])
 def test_reconstruct_with_other_planners_and_metrics(tmp_path, strategy, metric, obstacles):
-    from nbvs_drake.cli import main
+    from nbvs_drake.app.cli import main
     y = tmp_path / "s.yaml"
     y.write_text(f"name: alt\nnoise: {{sigma_v: 0, sigma_w: 0}}\nscene: {{gt_points: 5000}}\n"
                  f"planner: {{strategy: {strategy}, metric: {metric}, ort_vertices: 300, n_candidates: 500, "

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from nbvs_drake.config import Scenario
-from nbvs_drake.evaluation import coverage, plan_prediction, prediction_fit, scan_outcome
 from nbvs_drake.mapping.occupancy import OccupancyMap
+from nbvs_drake.perception.evaluation import coverage, plan_prediction, prediction_fit, scan_outcome
 
 
 def _wall(x=0.11):  # mid-voxel: each point in one voxel
@@ -45,7 +45,7 @@ def test_prediction_fit_and_prediction_fields():
 def test_a_run_records_predictions_and_outcomes(tmp_path):
     from conftest import small_scenario
 
-    from nbvs_drake.mission import run_mission
+    from nbvs_drake.app.mission import run_mission
     s = run_mission(small_scenario(0, 4), tmp_path, verbose=False)
     recs = [json.loads(x) for x in (tmp_path / "iterations.jsonl").read_text().splitlines()]
     assert "prediction" not in recs[0] and "outcome" not in recs[0]

@@ -1,11 +1,10 @@
 import numpy as np
 import pytest
 
-from nbvs_drake.config import Legs
-from nbvs_drake.config import NoiseConfig, Scenario
-from nbvs_drake.motion import rollout, steer
+from nbvs_drake.config import Legs, NoiseConfig, Scenario
 from nbvs_drake.planning.collision import CollisionModel
 from nbvs_drake.planning.expected_utility import expected_utility, sample_count_bound
+from nbvs_drake.world.motion import rollout, steer
 
 
 def test_eq18_sample_bound():
@@ -125,7 +124,7 @@ def test_uncertain_start_spreads_the_rollouts():
     plan): with exact controls the rollouts' final headings spread by that sigma, and a view
     that needs the heading within 0.1 rad is worth about a quarter of its nominal value; with
     no start covariance (or a zero one) the rollouts all end at the nominal state."""
-    from nbvs_drake.pose import Correction, apply_corrections
+    from nbvs_drake.world.pose import Correction, apply_corrections
     q0 = np.array([1.0, 2.0, 0.3, 0, 0.3, 0, 0, 0])
     xi = np.array([[0.1, -0.2, 0.4], [0.0, 0.0, 0.0]])
     starts = apply_corrections(q0, xi)
@@ -183,13 +182,14 @@ def test_the_registered_spread_the_rollouts_start_from_is_the_scenarios():
     motion.REGISTERED_SIGMA; a scenario may set what its registrations measured."""
     from nbvs_drake.config import load_scenario
     from nbvs_drake.errors import ScenarioError
-    from nbvs_drake.motion import REGISTERED_SIGMA
     from nbvs_drake.planning.utility import ExpectedUtilityScore
+    from nbvs_drake.world.motion import REGISTERED_SIGMA
     sc = load_scenario("cluttered_room", settings=["localisation.verified_views={}"])
     assert sc.localisation.verified_views.registered_sigma == list(REGISTERED_SIGMA)
     np.testing.assert_allclose(ExpectedUtilityScore(sc, None, None, None).registered_cov(),
                                np.diag(np.square(REGISTERED_SIGMA)))
-    sc = load_scenario("cluttered_room", settings=["localisation.verified_views={registered_sigma: [0.002, 0.003, 0.004]}"])
+    sc = load_scenario("cluttered_room",
+                       settings=["localisation.verified_views={registered_sigma: [0.002, 0.003, 0.004]}"])
     eu = ExpectedUtilityScore(sc, None, None, None)
     belief = np.diag([1e-4, 2e-4, 3e-4])
     np.testing.assert_allclose(eu.registered_cov(belief), belief + np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2]))

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from conftest import ctrl_c_as_in_a_terminal
 
-from nbvs_drake.cli import main
+from nbvs_drake.app.cli import main
 from nbvs_drake.config import load_scenario
 from nbvs_drake.experiments import (
     ExperimentError,
@@ -51,7 +51,7 @@ metrics:
 
 
 def _cli(*args, timeout=900):
-    return subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "experiment", *args], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "nbvs_drake.app.cli", "experiment", *args], capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -251,7 +251,7 @@ def test_a_killed_batch_keeps_its_finished_runs_and_redoes_only_the_unfinished(t
     y.write_text(TINY)
     out = tmp_path / "x"
     runs = out / "tiny" / "runs"
-    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.app.cli", "experiment", str(y), "--jobs", "1",
                              "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     deadline = time.time() + 300
@@ -324,7 +324,7 @@ def test_a_run_whose_worker_dies_fails_alone(tmp_path):
     y.write_text(TINY)
     out = tmp_path / "w"
     log = out / "tiny" / "runner.log"
-    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.app.cli", "experiment", str(y), "--jobs", "1",
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     deadline = time.time() + 120
     while time.time() < deadline and not (log.exists() and "start 0.3_s1 (worker pid" in log.read_text()):
@@ -357,7 +357,7 @@ def test_tables_say_at_which_commits_their_runs_were_made(tmp_path):
 def test_table_only_writes_the_table_of_the_finished_runs_and_runs_nothing(tmp_path):
     import json
 
-    from nbvs_drake.cli import main
+    from nbvs_drake.app.cli import main
     assert main(["experiment", "motion_noise", "--quick", "--table-only", "--out", str(tmp_path)]) == 0
     d = tmp_path / "motion_noise_quick"
     t = json.loads((d / "table.json").read_text())
@@ -487,9 +487,9 @@ def test_the_local_ray_cluster_refuses_a_client_without_its_token(tmp_path):
         p = subprocess.run([sys.executable, "-c", code, gcs], env=env, capture_output=True, text=True, timeout=120)
         assert p.returncode == 3 and "REFUSED" in p.stdout, p.stdout + p.stderr
         # the runner pointed at it with the wrong token: one line naming the address, no traceback
-        p = subprocess.run([sys.executable, "-m", "nbvs_drake.cli", "experiment", "objects", "--quick", "--executor",
-                            "ray", "--address", gcs, "--out", str(tmp_path / "x")], env=env, capture_output=True,
-                           text=True, timeout=180)
+        p = subprocess.run([sys.executable, "-m", "nbvs_drake.app.cli", "experiment", "objects", "--quick",
+                            "--executor", "ray", "--address", gcs, "--out", str(tmp_path / "x")], env=env,
+                           capture_output=True, text=True, timeout=180)
         lines = [ln for ln in p.stderr.splitlines() if ln.startswith("nbvs:")]
         assert p.returncode == 2 and len(lines) == 1, p.stderr[-2000:]
         assert f"the Ray cluster at {gcs}" in lines[0] and "token" in lines[0], lines[0]
@@ -510,7 +510,7 @@ def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
     y.write_text(TINY)
     out = tmp_path / "x"
     runs = out / "tiny" / "runs"
-    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "experiment", str(y), "--jobs", "1",
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.app.cli", "experiment", str(y), "--jobs", "1",
                              "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=ctrl_c_as_in_a_terminal)
     deadline = time.time() + 300

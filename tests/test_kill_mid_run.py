@@ -14,7 +14,7 @@ def test_killed_run_keeps_every_finished_iteration(tmp_path):
     y = tmp_path / "s.yaml"
     y.write_text("name: killed\nscene: {gt_points: 5000}\nplanner: {n_candidates: 500}\nmission: {max_scans: 12}\n")
     out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "reconstruct", "--scenario", str(y),
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.app.cli", "reconstruct", "--scenario", str(y),
                              "--out", str(out), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     log = out / "iterations.jsonl"
     deadline = time.time() + 300
@@ -44,7 +44,7 @@ def test_ctrl_c_says_where_the_finished_iterations_are(tmp_path):
     y = tmp_path / "s.yaml"
     y.write_text("name: stopped\nscene: {gt_points: 5000}\nplanner: {n_candidates: 500}\nmission: {max_scans: 12}\n")
     out = tmp_path / "o"
-    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.cli", "reconstruct", "--scenario", str(y),
+    proc = subprocess.Popen([sys.executable, "-m", "nbvs_drake.app.cli", "reconstruct", "--scenario", str(y),
                              "--out", str(out), "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                             text=True, preexec_fn=ctrl_c_as_in_a_terminal)
     log = out / "iterations.jsonl"

@@ -1,8 +1,8 @@
 import numpy as np
 from pydrake.systems.analysis import Simulator
 
-from nbvs_drake.motion import euler_step, rollout
 from nbvs_drake.systems.kinematic_plant import KinematicPlant
+from nbvs_drake.world.motion import euler_step, rollout
 
 
 def _run(kin, q0, u, dt, T):

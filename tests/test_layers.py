@@ -12,14 +12,15 @@ PACKAGE = Path(nbvs_drake.__file__).resolve().parent
 
 #: layer of each module (the longest matching prefix decides), lowest first
 LAYERS = [
-    ("foundation", ["errors", "files", "state", "resources", "config"]),
-    ("models", ["motion", "sensor", "scene", "robot", "objects", "evaluation", "pose", "registration",
-                "mapping", "reconstruction"]),
-    ("planning and outputs", ["planning", "plots", "meshcat_draw", "replay", "screenshot", "visual_outputs"]),
+    ("foundation", ["errors", "files", "resources", "kernel_cache", "config", "world.state"]),
+    ("models", ["world", "perception.registration", "perception.evaluation", "perception.reconstruction", "mapping"]),
+    ("planning and outputs", ["planning", "outputs.plots", "outputs.meshcat_draw", "outputs.replay",
+                              "outputs.screenshot", "outputs.visual_outputs", "outputs"]),
     ("systems", ["systems"]),
-    ("mission", ["diagram", "scanning", "diagnostics", "wiring", "mission", "bench", "warmup"]),
-    ("api", ["api", "experiments"]),
-    ("cli", ["cli", ""]),  # "": the package itself (nbvs_drake/__init__.py)
+    ("mission", ["app.diagram", "perception.scanning", "perception", "outputs.diagnostics", "outputs.wiring",
+                 "app.mission", "app.bench", "app.warmup", "app"]),
+    ("api", ["app.api", "experiments"]),
+    ("cli", ["app.cli", ""]),  # "": the package itself (nbvs_drake/__init__.py)
 ]
 
 

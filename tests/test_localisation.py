@@ -9,10 +9,10 @@ from pydrake.systems.sensors import ImageDepth32F
 
 from nbvs_drake.config import Scenario
 from nbvs_drake.mapping.occupancy import OccupancyMap
-from nbvs_drake.motion import ControlSequence, rollout, steer
 from nbvs_drake.systems.depth_camera import DepthNoise
 from nbvs_drake.systems.localisation import Localisation
 from nbvs_drake.systems.messages import Belief, ControllerStatus, RegisteredScan
+from nbvs_drake.world.motion import ControlSequence, rollout, steer
 
 
 def _cloud(P):

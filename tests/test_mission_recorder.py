@@ -62,7 +62,7 @@ def test_each_localisation_frame_of_an_iteration_gets_its_true_error(tmp_path):
 def test_pose_errors_summarise_scans_and_registered_frames():
     """summary.json's pose_error: the corrected belief after the last registered scan, and
     the worst of the localisation frames that registered (frames that did not are left out)."""
-    from nbvs_drake.mission import pose_errors
+    from nbvs_drake.app.mission import pose_errors
     q = [0.0] * 8
 
     def row(k, corrected_dx, applied, frames=()):

@@ -4,8 +4,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from nbvs_drake.config import NoiseConfig
-from nbvs_drake.motion import ControlSequence, noise_sigmas, sample_truncated_normal, truncated_normal_logpdf
 from nbvs_drake.systems.noisy_velocity_controller import NoisyVelocityController, plan_noise
+from nbvs_drake.world.motion import ControlSequence, noise_sigmas, sample_truncated_normal, truncated_normal_logpdf
 
 
 def _plan(m=20, plan_id=1):

@@ -8,7 +8,7 @@ import pytest
 
 from nbvs_drake.config import Scenario, load_scenario, validate
 from nbvs_drake.errors import ScenarioError
-from nbvs_drake.objects import (
+from nbvs_drake.world.objects import (
     ObjectMesh,
     build_object,
     object_orientation,
@@ -183,8 +183,8 @@ def test_changing_kind_by_a_setting_takes_that_kinds_size():
 def test_short_dragon_run_reconstructs_it(tmp_path):
     from conftest import small_scenario
 
+    from nbvs_drake.app.mission import run_mission
     from nbvs_drake.config import apply_setting
-    from nbvs_drake.mission import run_mission
     sc = apply_setting(small_scenario(seed=1, scans=2, n_candidates=500, gt_points=4000), "scene.object.kind=dragon")
     sc.scene.object.size = None
     s = run_mission(validate(sc), tmp_path / "run", verbose=False)
@@ -211,7 +211,7 @@ def test_quad_ngon_glb_and_off_meshes_load_to_the_same_surface(tmp_path):
     bounds, every sample of one on the other). A mesh in millimetres scales like one in metres."""
     import trimesh
 
-    from nbvs_drake.objects import load_mesh_file
+    from nbvs_drake.world.objects import load_mesh_file
     # a hexagonal prism: 2 hexagons (n-gons) and 6 quads
     ang = np.arange(6) * np.pi / 3
     ring = np.c_[0.1 * np.cos(ang), 0.1 * np.sin(ang)]
@@ -255,7 +255,7 @@ def test_quad_ngon_glb_and_off_meshes_load_to_the_same_surface(tmp_path):
 
 def test_a_file_that_is_no_mesh_keeps_its_one_line_error(tmp_path):
     from nbvs_drake.errors import MeshError
-    from nbvs_drake.objects import load_mesh_file
+    from nbvs_drake.world.objects import load_mesh_file
     bad = tmp_path / "bad.glb"
     bad.write_bytes(b"not a gltf at all")
     with pytest.raises(MeshError, match="bad.glb") as e:

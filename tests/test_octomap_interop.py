@@ -21,7 +21,7 @@ def _tree_classes(tree, omap):
 @pytest.fixture(scope="module")
 def scans(tmp_path_factory, kin):
     from nbvs_drake.config import load_scenario
-    from nbvs_drake.scanning import ScanRenderer
+    from nbvs_drake.perception.scanning import ScanRenderer
     sc = load_scenario()
     r = ScanRenderer(sc, tmp_path_factory.mktemp("scene"), kin)
     q0 = np.array(sc.robot.start)

@@ -86,7 +86,7 @@ def test_mapper_system_integrates_each_registered_scan_once():
 
 
 def test_no_return_pixels_clear_free_space():
-    from nbvs_drake.sensor import no_return_rays, ray_directions
+    from nbvs_drake.world.sensor import no_return_rays, ray_directions
     sc = Scenario()
     dirs = ray_directions(sc.sensor, 1)[0]
     depth = np.full((144, 176), np.inf, np.float32)

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from nbvs_drake.config import Scenario, load_scenario, validate
-from nbvs_drake.objects import build_object
 from nbvs_drake.planning.oracle import TruthScene, coverage_ceiling, newly_covered, reference_samples
+from nbvs_drake.world.objects import build_object
 
 
 def _box_scenario(tmp_path, size=0.2):
@@ -79,7 +79,7 @@ def test_the_oracle_picks_the_reachable_view_that_adds_the_most(first_scan_map, 
 
 
 def test_the_oracles_coverage_never_falls(tmp_path):
-    from nbvs_drake.mission import run_mission
+    from nbvs_drake.app.mission import run_mission
     sc = load_scenario(None, settings=["planner.strategy=oracle", "planner.n_candidates=500", "mission.max_scans=4",
                                        "scene.gt_points=6000", "mission.coverage_ceiling=false"])
     s = run_mission(sc, tmp_path / "run", verbose=False)

@@ -16,8 +16,8 @@ from conftest import small_scenario
 
 import nbvs_drake
 from nbvs_drake import resources
-from nbvs_drake.api import OUTPUTS, RunResult, _prepare_output, reconstruct
-from nbvs_drake.cli import main
+from nbvs_drake.app.api import OUTPUTS, RunResult, _prepare_output, reconstruct
+from nbvs_drake.app.cli import main
 from nbvs_drake.config import load_scenario
 from nbvs_drake.errors import NbvsError, RunExistsError, ScenarioError
 
@@ -76,7 +76,7 @@ def test_scenario_by_name_path_or_neither(tmp_path, monkeypatch):
 
 
 def test_relative_mesh_paths_resolve_against_the_scenario_folder(tmp_path, monkeypatch):
-    from nbvs_drake.objects import build_object, tessellate_teapot
+    from nbvs_drake.world.objects import build_object, tessellate_teapot
     (tmp_path / "scn" / "meshes").mkdir(parents=True)
     tessellate_teapot(4).write_obj(tmp_path / "scn" / "meshes" / "pot.obj")
     (tmp_path / "scn" / "pot.yaml").write_text(
@@ -223,8 +223,8 @@ def test_wheel_ships_every_model_and_scenario_and_finds_them_outside_the_reposit
 import json, nbvs_drake
 from nbvs_drake import resources
 from nbvs_drake.config import load_scenario
-from nbvs_drake.objects import build_object
-from nbvs_drake.robot import RobotKinematics
+from nbvs_drake.world.objects import build_object
+from nbvs_drake.world.robot import RobotKinematics
 sc = load_scenario("teapot_eu_mu")
 RobotKinematics()  # parses the shipped URDF
 print(json.dumps({"file": nbvs_drake.__file__, "models": str(resources.models_dir()),

@@ -7,7 +7,12 @@ from pydrake.systems.analysis import Simulator
 
 from nbvs_drake.config import Expected, Ort, RandomSampling, Roadmap, ViewSampling
 from nbvs_drake.mapping import view_metrics as K
-from nbvs_drake.motion import (
+from nbvs_drake.planning import PlanRequest, make_planner
+from nbvs_drake.planning.utility import ExpectedUtilityScore
+from nbvs_drake.planning.views import director_ray_hits, registration_overlap
+from nbvs_drake.systems.messages import Belief, PlanReport
+from nbvs_drake.systems.nbvs_planner import NBVSPlanner
+from nbvs_drake.world.motion import (
     detour_waypoints,
     path_length,
     rollout,
@@ -17,11 +22,6 @@ from nbvs_drake.motion import (
     steer_via,
     wrap_angle,
 )
-from nbvs_drake.planning import PlanRequest, make_planner
-from nbvs_drake.planning.utility import ExpectedUtilityScore
-from nbvs_drake.planning.views import director_ray_hits, registration_overlap
-from nbvs_drake.systems.messages import Belief, PlanReport
-from nbvs_drake.systems.nbvs_planner import NBVSPlanner
 
 
 def _request(omap, q0, seed=0, cov=None):
@@ -245,14 +245,14 @@ def _planner_system_after(sc, planner, omap, belief: Belief):
 
 
 def _belief(q0, correction=(0.0, 0.0, 0.0), covariance=None):
-    from nbvs_drake.pose import Correction
+    from nbvs_drake.world.pose import Correction
     q0 = np.asarray(q0, float)
     cov = np.zeros((3, 3)) if covariance is None else np.asarray(covariance, float)
     return Belief(1, q0, Correction(*correction).apply_state(q0), cov)
 
 
 def test_planner_plans_from_the_belief_and_applies_the_stop_criteria(planner, first_scan_map):
-    from nbvs_drake.pose import Correction
+    from nbvs_drake.world.pose import Correction
     sc, omap = first_scan_map
     sc = copy.deepcopy(sc)
     q0 = np.array(sc.robot.start)

@@ -8,11 +8,11 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.analysis import Simulator
 
 from nbvs_drake.config import Scenario
-from nbvs_drake.objects import ObjectMesh, sample_surface
-from nbvs_drake.reconstruction import depth_from_points, mesh_metrics, point_metrics
-from nbvs_drake.sensor import intrinsics
+from nbvs_drake.perception.reconstruction import depth_from_points, mesh_metrics, point_metrics
 from nbvs_drake.systems.messages import RegisteredScan
 from nbvs_drake.systems.surface_fusion import SurfaceFusion
+from nbvs_drake.world.objects import ObjectMesh, sample_surface
+from nbvs_drake.world.sensor import intrinsics
 
 R = 0.1  #: the test sphere's radius (m)
 

@@ -9,10 +9,8 @@ import pytest
 from pydrake.common.value import AbstractValue
 from test_registration import _cloud, _first_scan_then_plan, renderer, second_scan_in_view  # noqa: F401
 
-from nbvs_drake.config import VerifiedViews
-from nbvs_drake.config import apply_setting as _set
-from nbvs_drake.config import load_scenario
-from nbvs_drake.motion import ControlSequence
+from nbvs_drake.config import VerifiedViews, load_scenario
+from nbvs_drake.perception.registration import KnownSolids, RegistrationConfig, region_mask
 from nbvs_drake.planning.recovery import (
     aim_error,
     arm_correction,
@@ -24,7 +22,7 @@ from nbvs_drake.planning.recovery import (
     registration_landmarks,
     relocalisation_scores,
 )
-from nbvs_drake.registration import KnownSolids, RegistrationConfig, region_mask
+from nbvs_drake.world.motion import ControlSequence
 
 
 def test_a_frame_that_cannot_be_registered_triggers_relocalisation_then_the_next_registers(renderer):  # noqa: F811
@@ -63,7 +61,7 @@ def test_a_frame_that_cannot_be_registered_triggers_relocalisation_then_the_next
     b = loc.GetOutputPort("belief").Eval(lctx)
     assert b.check == "correct" and b.frame == 3 and not np.any(b.covariance)
     assert mapper.GetOutputPort("map").Eval(mctx).scan_count == 1
-    from nbvs_drake.pose import state_error
+    from nbvs_drake.world.pose import state_error
     assert state_error(qt, b.state)[1] < 0.5 * state_error(qt, qb)[1]  # the heading error found
     # the exact arm-only correction: its frame is the sensing scan
     fix = ControlSequence(3, 0.1, np.zeros((0, 7)), b.state[None], "correct", states[-1])
@@ -130,7 +128,7 @@ def test_a_landmark_whose_surface_faces_away_is_not_in_view(kin):  # noqa: F811
 
 def _seen_through_reference(solids, origin, P, tol):
     """Slab tests in numpy, box by box: the reference for KnownSolids' kernel."""
-    from nbvs_drake.pose import rot_z
+    from nbvs_drake.world.pose import rot_z
     out = np.zeros(len(P), bool)
     for c, h, yaw in zip(solids.centers, solids.half, solids.yaw):
         R = rot_z(yaw)
@@ -175,8 +173,8 @@ def test_landmark_occlusion_picks_a_relocalisation_view_that_sees_the_table(tmp_
     returns several times the registration-region points of the one ranked first without
     it, rendered by the real depth camera; the occlusion-aware score knows the blind pick
     sees almost no landmark. Measured: 1274 against 302 points, scores 0.17 and 0.06."""
-    from nbvs_drake.robot import RobotKinematics
-    from nbvs_drake.scanning import ScanRenderer
+    from nbvs_drake.perception.scanning import ScanRenderer
+    from nbvs_drake.world.robot import RobotKinematics
     sc = load_scenario("cluttered_room", settings=["localisation.verified_views={landmarks: {occlusion: true}}"])
     kin = RobotKinematics(sc.robot.urdf)
     solids = landmark_solids(sc)
@@ -255,7 +253,7 @@ def test_the_planner_answers_a_localisation_frame(kin, first_scan_map, check):
 
 def test_legs_end_after_each_drive_that_more_base_motion_follows():
     from nbvs_drake.config import RobotConfig
-    from nbvs_drake.motion import leg_ends, rollout, steer
+    from nbvs_drake.world.motion import leg_ends, rollout, steer
     rc = RobotConfig()
     q0 = np.array([-1.3, 0, 0, 0, 0.3, -0.3, -0.2, 0])
     q1 = np.array([0.9, 1.0, 2.0, 0.5, 0.3, -0.3, -0.2, 0])
@@ -334,7 +332,7 @@ def test_with_leg_turns_a_leg_also_ends_after_a_long_turn_that_a_drive_follows()
     ends after a turn of at least motion.min_leg_turn steps that a drive follows; a shorter
     turn stays in its leg."""
     from nbvs_drake.config import RobotConfig
-    from nbvs_drake.motion import leg_ends, min_leg_turn, plan_legs, rollout, steer
+    from nbvs_drake.world.motion import leg_ends, min_leg_turn, plan_legs, rollout, steer
     rc = RobotConfig()
     sc = load_scenario("cluttered_room", settings=["mission.verify_views=true", "mission.legs=true",
                                                     "mission.leg_turns=true"])
@@ -372,10 +370,10 @@ def test_with_leg_turns_each_leg_has_its_own_recovery_budget():
 def test_with_leg_turns_a_replanned_leg_turns_first_then_drives(kin, first_scan_map):
     """A frame at a leg's end far off its line (0.4 rad): the answer is the turn back onto the
     line alone, and the leg's end stays ahead of the legs still to go."""
-    from nbvs_drake.motion import rollout, steer
     from nbvs_drake.planning import make_planner
     from nbvs_drake.planning.interface import PlanResult
     from nbvs_drake.systems.nbvs_planner import NBVSPlanner
+    from nbvs_drake.world.motion import rollout, steer
     _, omap = first_scan_map
     sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true", "mission.legs=true",
                                                   "mission.leg_turns=true"])
@@ -428,7 +426,7 @@ def test_the_scan_after_a_correction_is_registered_again_with_refine_scan(render
     registered too, from the frame's pose with the registration's own spread as its prior,
     and the belief takes that registration's correction; without it the scan is taken at
     the belief (the frame before it registered, the correction path is exact)."""
-    from nbvs_drake.motion import REGISTERED_SIGMA
+    from nbvs_drake.world.motion import REGISTERED_SIGMA
     loc, mapper, ctx, b, scan, _ = _a_frame_then_its_correction(renderer, refine_scan=refine)
     mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
     scan()
@@ -439,7 +437,7 @@ def test_the_scan_after_a_correction_is_registered_again_with_refine_scan(render
     if refine:
         assert rep["icp"] is not None and rep["icp"]["applied"]
         np.testing.assert_allclose(rep["icp"]["prior_sigma"], REGISTERED_SIGMA, rtol=1e-3)
-        from nbvs_drake.pose import Correction
+        from nbvs_drake.world.pose import Correction
         np.testing.assert_allclose(after.state, Correction(*rep["icp"]["correction"]).apply_state(b.state),
                                    atol=1e-5)
     else:

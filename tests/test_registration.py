@@ -11,9 +11,7 @@ from pydrake.systems.sensors import ImageDepth32F
 
 from nbvs_drake.config import load_scenario
 from nbvs_drake.mapping.occupancy import OccupancyMap
-from nbvs_drake.motion import ControlSequence, rollout, sample_control_noise, steer
-from nbvs_drake.pose import Correction, state_error
-from nbvs_drake.registration import (
+from nbvs_drake.perception.registration import (
     KnownSolids,
     RegistrationConfig,
     RegistrationModel,
@@ -24,6 +22,8 @@ from nbvs_drake.registration import (
     register_scan,
 )
 from nbvs_drake.systems.octree_mapper import OctreeMapper
+from nbvs_drake.world.motion import ControlSequence, rollout, sample_control_noise, steer
+from nbvs_drake.world.pose import Correction, state_error
 
 
 def test_correction_algebra(kin):
@@ -77,14 +77,14 @@ def _every_component_perturbed(request, monkeypatch):
     """The tests on `renderer` perturb every control component, the drive's omega too (larger
     heading errors to correct than Table 4's rule, which executes a zero command exactly)."""
     if "renderer" in request.fixturenames:
-        import nbvs_drake.motion as motion
+        import nbvs_drake.world.motion as motion
         monkeypatch.setattr(motion, "control_sigmas", lambda noise, controls: np.broadcast_to(
             motion.noise_sigmas(noise), np.shape(controls)).copy())
 
 
 @pytest.fixture(scope="module")
 def renderer(tmp_path_factory):
-    from nbvs_drake.scanning import ScanRenderer
+    from nbvs_drake.perception.scanning import ScanRenderer
     sc = load_scenario()
     sc.noise.sigma_v, sc.noise.sigma_w = 0.00165, 0.28
     r = ScanRenderer(sc, tmp_path_factory.mktemp("scan"))
@@ -283,7 +283,7 @@ def test_the_residual_cap_is_what_a_point_on_new_surface_costs():
     points on it, 3 mm off, and m points on new surface far from any model point. Each point on
     the wall costs (3 mm / s)^2, each new one the cap squared over s^2: the last stage's 2 cm by
     default, mission.registration_residual_cap when set."""
-    from nbvs_drake.registration import PlanarIcp
+    from nbvs_drake.perception.registration import PlanarIcp
     yy, zz = np.meshgrid(np.arange(-0.3, 0.3, 0.005), np.arange(0.0, 0.3, 0.005))
     wall = np.stack([np.zeros(yy.size), yy.ravel(), zz.ravel()], axis=1)
     normals = np.tile([1.0, 0.0, 0.0], (len(wall), 1))

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from conftest import small_scenario
 
-from nbvs_drake import meshcat_draw, replay, screenshot
-from nbvs_drake.mission import run_mission
+from nbvs_drake.app.mission import run_mission
+from nbvs_drake.outputs import meshcat_draw, replay, screenshot
 
 
 def _small(scans=3):
@@ -70,7 +70,7 @@ def test_live_view_drew_the_scene(live_run):
 def test_replay_and_paths_tolerate_old_records(live_run, tmp_path):
     """Records without the path fields (older iterations.jsonl) and no maps still give a
     replay (robot jumping between the scan poses) and a top view."""
-    from nbvs_drake.plots import plot_paths
+    from nbvs_drake.outputs.plots import plot_paths
     out, _, _ = live_run
     recs = [json.loads(x) for x in (out / "iterations.jsonl").read_text().splitlines()]
     for r in recs:
@@ -121,7 +121,7 @@ def test_paths_plot_draws_the_chairs_of_the_cluttered_room(tmp_path):
     """The top view shows every known obstacle: cluttered_room's nine chairs (seat and
     backrest each) beside the table, and none in the plain scene."""
     from nbvs_drake.config import load_scenario
-    from nbvs_drake.plots import plot_paths
+    from nbvs_drake.outputs.plots import plot_paths
     room = load_scenario("cluttered_room")
     drawn = plot_paths([], tmp_path / "room.png", room.scene)
     assert sorted(drawn) == sorted([f"chair{k}_{part}" for k in (0, 1, 2, 3, 4, 6, 7, 8, 9)

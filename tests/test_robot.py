@@ -1,7 +1,7 @@
 import numpy as np
 from conftest import random_states
 
-from nbvs_drake.robot import ARM_JOINTS, RobotKinematics
+from nbvs_drake.world.robot import ARM_JOINTS, RobotKinematics
 
 
 def test_urdf_has_8_dof_and_katana_limits(kin: RobotKinematics):

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from nbvs_drake.config import SensorConfig, resolve_sensor
-from nbvs_drake.evaluation import BLIND_SCAN_POINTS
 from nbvs_drake.mapping import view_metrics as K
 from nbvs_drake.mapping.voxel import OCCUPIED
-from nbvs_drake.sensor import intrinsics, ray_directions
+from nbvs_drake.perception.evaluation import BLIND_SCAN_POINTS
+from nbvs_drake.world.sensor import intrinsics, ray_directions
 
 #: the camera 0.245 m from the teapot's known front surface (along its optical axis), with
 #: the surface filling the view: nearer than the SR4000's 0.4 m minimum range
@@ -24,8 +24,8 @@ Q_FAR = [-1.417, -0.065, -0.28, 0.312, 1.558, -1.544, -0.364, -2.485]
 
 @pytest.fixture(scope="module")
 def scene(first_scan_map, kin):
+    from nbvs_drake.perception.scanning import ScanRenderer
     from nbvs_drake.planning.views import ViewEvaluator
-    from nbvs_drake.scanning import ScanRenderer
     sc, omap = first_scan_map
     with tempfile.TemporaryDirectory() as tmp:
         renderer = ScanRenderer(sc, Path(tmp), kin)

@@ -4,10 +4,10 @@ import copy
 import numpy as np
 import pytest
 
-from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.config import Scenario
-from nbvs_drake.motion import rollout, wrap_angle
+from nbvs_drake.config import apply_setting as _set
 from nbvs_drake.planning.rrt import Tree, rrt_ext_ext, weighted_dist
+from nbvs_drake.world.motion import rollout, wrap_angle
 
 W = np.array([10, 10, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
 
@@ -88,7 +88,7 @@ def test_nearest_is_the_argmin_of_the_weighted_distance():
 
 def test_tree_edges_are_the_first_steering_sequence():
     from nbvs_drake.config import RobotConfig
-    from nbvs_drake.motion import steer, steer_together
+    from nbvs_drake.world.motion import steer, steer_together
     rc = RobotConfig()
     rng = np.random.default_rng(4)
     for _ in range(50):

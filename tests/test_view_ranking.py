@@ -10,7 +10,7 @@ from nbvs_drake.mapping import view_metrics as VM
 from nbvs_drake.mapping.occupancy import OccupancyMap
 from nbvs_drake.planning.candidates import StateSampler
 from nbvs_drake.planning.views import ViewEvaluator, ranking_score, scaled_score
-from nbvs_drake.robot import RobotKinematics
+from nbvs_drake.world.robot import RobotKinematics
 
 
 def _ray_meets_sphere(o, d, c, r, t_far):

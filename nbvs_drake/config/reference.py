@@ -67,7 +67,8 @@ def _section(cls, path: str, out: list, seen: set) -> None:
     if cls in seen and path in seen:
         return
     doc = inspect.getdoc(cls) or ""
-    out += [(f"### `{path}`" if path else "### The top level") + (f" — `!{cls.__name__}`" if not cls.__name__.endswith("Config") and path else ""), ""]
+    tag = f" — `!{cls.__name__}`" if not cls.__name__.endswith("Config") and path else ""
+    out += [(f"### `{path}`" if path else "### The top level") + tag, ""]
     if doc:
         out += [" ".join(doc.split()), ""]
     hints = typing.get_type_hints(cls)

@@ -654,7 +654,8 @@ class Scenario:
     over it."""
     name: str = "default"  #: the scenario's name (in reports)
     seed: int = 0  #: every random draw of the run derives from it: same seed, same result
-    preset: Optional[str] = None  #: the preset the file starts from (config/presets/: paper, nbvs, nbvs_noise, nbvs_room)
+    #: the preset the file starts from (config/presets/: paper, nbvs, nbvs_noise, nbvs_room)
+    preset: Optional[str] = None
     robot: RobotConfig = dc.field(default_factory=RobotConfig)
     scene: SceneConfig = dc.field(default_factory=SceneConfig)
     sensor: SensorConfig = dc.field(default_factory=SensorConfig)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plots import plt
+from ..outputs.plots import plt
 
 
 def _series_of(table: dict, cell_idx: int, name: str):

@@ -56,7 +56,7 @@ def cpu_count() -> int:
 def reconstruct_run(scenario: str, out: Path, seed: int, overrides) -> dict:
     """One `nbvs reconstruct` (nbvs_drake.reconstruct) into the fresh folder `out`; returns
     its summary. `scenario`: a built-in scenario's name (`teapot_eu_mu`) or a YAML path."""
-    from ..api import reconstruct
+    from ..app.api import reconstruct
     return reconstruct(scenario=str(scenario), out=out, seed=seed, overrides=list(overrides), verbose=True).summary
 
 

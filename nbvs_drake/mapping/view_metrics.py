@@ -713,7 +713,7 @@ def frustum_planes(dirs_cam: np.ndarray) -> np.ndarray:
 def known_occluders(sc) -> np.ndarray:
     """The known environment's boxes but the floor (the table, its legs, the chairs) as
     `evaluate_views`' occluders (M, 8)."""
-    from ..scene import box_arrays
+    from ..world.scene import box_arrays
     centers, half, yaw = box_arrays(sc, floor=False)
     return np.ascontiguousarray(np.c_[centers, half, np.cos(yaw), np.sin(yaw)])
 

@@ -31,7 +31,7 @@ def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True, truth_mesh=
         from .baselines import make_baseline
         return make_baseline(sc, kin, sampler, evaluator, obstacles, motion, utility, overlap_h)
     if p.strategy_name() == "Oracle":  # the greedy oracle: it knows the true object (truth_mesh)
-        from ..objects import build_object
+        from ..world.objects import build_object
         from .oracle import OraclePlanner
         return OraclePlanner(sc, kin, sampler, obstacles, motion, truth_mesh or build_object(sc))
     if p.strategy_name() == "Ort":

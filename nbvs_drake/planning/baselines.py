@@ -28,8 +28,8 @@ import numpy as np
 from ..config import Scenario, resolve_sensor
 from ..mapping import view_metrics as K
 from ..mapping.occupancy import OccupancyMap
-from ..motion import path_length, wrap_angle
-from ..robot import RobotKinematics
+from ..world.motion import path_length, wrap_angle
+from ..world.robot import RobotKinematics
 from .candidates import StateSampler, free_candidates
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, reached_goal

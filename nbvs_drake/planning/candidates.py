@@ -12,9 +12,9 @@ import numpy as np
 
 from ..config import Scenario, resolve_sensor
 from ..mapping.occupancy import OccupancyMap
-from ..robot import RobotKinematics
-from ..state import NQ
-from .clearance import _body_chain
+from ..world.robot import RobotKinematics
+from ..world.state import NQ
+from .certificate import body_chain
 from .views import director_ray_hits
 
 
@@ -109,7 +109,7 @@ def _looks_at_box(q, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offset,
     """out[n]: the camera's optical axis (+z of X_WB5 @ X_L5C) at state q[n] enters the box
     [bmin, bmax] before t_far and leaves it after t_near (the slab test of
     `views.director_ray_hits`, NaN slabs ignored as nanmax / nanmin ignore them), with the
-    forward kinematics of `clearance._body_chain`. A state whose arm plane (`_arm_plane_offset`:
+    forward kinematics of `certificate.body_chain`. A state whose arm plane (`_arm_plane_offset`:
     the optical axis is within plane_offset of it) misses the box is rejected first, without
     the kinematics (the same verdicts: the ray lies within that slab). The states are split
     into chunks over `threads` numba threads (the same verdicts for any count)."""
@@ -143,7 +143,7 @@ def _looks_at_one(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_offs
                             ny, -nx, hx, hy):
             out[n] = False
             return
-    _body_chain(q[n], X_PF, axes, T, tmp)
+    body_chain(q[n], X_PF, axes, T, tmp)
     t0, t1 = -np.inf, np.inf
     slabs = False
     for i in range(3):

@@ -12,10 +12,10 @@ import time
 import numpy as np
 
 from ..config import Scenario
-from ..robot import RobotKinematics, add_robot
-from ..scene import add_environment
-from . import bulk
-from .clearance import FREE, UNKNOWN, FreeCertificate, Unsupported
+from ..world.robot import RobotKinematics, add_robot
+from ..world.scene import add_environment
+from . import path_verdicts
+from .certificate import FREE, UNKNOWN, FreeCertificate, Unsupported
 
 #: the robot's base link (the PatrolBot's body), which planner.obstacles.base_clearance pads
 BASE_BODY = "base_link"
@@ -80,26 +80,28 @@ class CollisionModel:
         """FREE / COLLIDING / UNKNOWN of states (N, 8) by the conservative model alone (needs
         the certificate)."""
         with self.timed():
-            return bulk.classify(np.ascontiguousarray(np.atleast_2d(q), float), *self.certificate.model, self.counter)
+            q = np.ascontiguousarray(np.atleast_2d(q), float)
+            return path_verdicts.classify(q, *self.certificate.model, self.counter)
 
     def bulk_path(self, states: np.ndarray, max_step: float = 0.02) -> int:
-        """FREE / COLLIDING / UNKNOWN of a path by the conservative model alone (bulk.path_verdict)."""
+        """FREE / COLLIDING / UNKNOWN of a path by the conservative model alone (path_verdicts.path_verdict)."""
         with self.timed():
-            return int(bulk.path_verdict(np.ascontiguousarray(states, float), *self.certificate.model, max_step,
-                                         bulk.STRIDE, self.counter))
+            states = np.ascontiguousarray(states, float)
+            return int(path_verdicts.path_verdict(states, *self.certificate.model, max_step,
+                                                  path_verdicts.STRIDE, self.counter))
 
     def bulk_path_undecided(self, states: np.ndarray, max_step: float = 0.02):
         """(verdict, interpolated states, indices of those the model cannot decide) of a path
-        (bulk.path_undecided)."""
+        (path_verdicts.path_undecided)."""
         with self.timed():
-            return bulk.path_undecided(np.ascontiguousarray(states, float), *self.certificate.model, max_step,
-                                       bulk.STRIDE, self.counter)
+            return path_verdicts.path_undecided(np.ascontiguousarray(states, float), *self.certificate.model, max_step,
+                                       path_verdicts.STRIDE, self.counter)
 
     def bulk_edges(self, A: np.ndarray, B: np.ndarray, rc: np.ndarray, max_step: float = 0.02) -> np.ndarray:
-        """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (bulk.edge_verdicts)."""
+        """FREE / COLLIDING / UNKNOWN of the steering edges A[i] -> B[i] (path_verdicts.edge_verdicts)."""
         with self.timed():
-            return bulk.edge_verdicts(np.ascontiguousarray(A, float), np.ascontiguousarray(B, float),
-                                      *self.certificate.model, rc, max_step, bulk.STRIDE, self.counter)
+            return path_verdicts.edge_verdicts(np.ascontiguousarray(A, float), np.ascontiguousarray(B, float),
+                                      *self.certificate.model, rc, max_step, path_verdicts.STRIDE, self.counter)
 
     def free(self, q: np.ndarray, parallelize: bool = True) -> np.ndarray:
         """Boolean (N,) collision-free flags for states (N, 8)."""

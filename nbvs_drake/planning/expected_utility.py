@@ -27,8 +27,14 @@ from typing import Callable
 import numpy as np
 
 from ..config import NoiseConfig
-from ..motion import control_sigmas, rollout, sample_control_noise, sample_truncated_normal, truncated_normal_logpdf
-from ..pose import EXACT_POSE_VAR, apply_corrections
+from ..world.motion import (
+    control_sigmas,
+    rollout,
+    sample_control_noise,
+    sample_truncated_normal,
+    truncated_normal_logpdf,
+)
+from ..world.pose import EXACT_POSE_VAR, apply_corrections
 
 #: the coarse pass over a chunk of rollouts checks every COARSE_STEP-th step (and the last)
 COARSE_STEP = 8

@@ -15,13 +15,13 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import detour_waypoints, path_length, rollout, steer, steer_arc, steer_together, steer_via
-from ..robot import RobotKinematics
-from . import bulk
-from .bulk import STRIDE
+from ..world.motion import detour_waypoints, path_length, rollout, steer, steer_arc, steer_together, steer_via
+from ..world.robot import RobotKinematics
+from . import steer_kernels
 from .candidates import StateSampler
-from .clearance import FREE, UNKNOWN
+from .certificate import FREE, UNKNOWN
 from .collision import CollisionModel
+from .path_verdicts import STRIDE
 
 #: planner.free_goal_heading(): the turned goals tried, evenly spaced in heading (with the goal's own)
 GOAL_HEADINGS = 12
@@ -138,7 +138,7 @@ class MotionPlanner:
         self.sc = sc
         self.kin = kin
         self.sampler = sampler
-        #: paths are first checked whole by the bulk kernels (planning/bulk.py) and go to the
+        #: paths are first checked whole by the bulk kernels (planning/path_verdicts.py) and go to the
         #: certificate-then-Drake checks only when those cannot decide (False: as before them)
         self.bulk_checks = bulk_checks
         self._roadmap = None
@@ -256,7 +256,7 @@ class MotionPlanner:
         camera pose) to each of GOAL_HEADINGS headings around its own and to the headings
         that face the direction of travel on arrival (forward or backward: no final turn):
         'together' (and 'arc' with planner.steering.arcs) to the TURNED_GOALS of them with the
-        shortest 'together' (eq. 8, `bulk.edge_lengths`). The path's last state is the
+        shortest 'together' (eq. 8, `steer_kernels.edge_lengths`). The path's last state is the
         turned goal."""
         rc, p = self.sc.robot, self.sc.planner
         h = goal[2] + np.arange(1, GOAL_HEADINGS) * (2 * np.pi / GOAL_HEADINGS)
@@ -273,8 +273,8 @@ class MotionPlanner:
         twins = twins[~np.isnan(twins[:, 0])]
         if len(twins) == 0:
             return []
-        lengths = bulk.edge_lengths(np.repeat(np.asarray(q0, float)[None], len(twins), 0), twins,
-                                    np.asarray(p.weights, float), bulk.robot_params(rc))
+        lengths = steer_kernels.edge_lengths(np.repeat(np.asarray(q0, float)[None], len(twins), 0), twins,
+                                    np.asarray(p.weights, float), steer_kernels.robot_params(rc))
         out = []
         for t in twins[np.argsort(lengths, kind="stable")[:TURNED_GOALS]]:
             out.append(("together", steer_together(q0, t, rc)))

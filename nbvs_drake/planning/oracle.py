@@ -27,9 +27,9 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Scenario, resolve_sensor
-from ..objects import ObjectMesh, sample_surface
-from ..robot import RobotKinematics
-from ..sensor import ray_directions
+from ..world.objects import ObjectMesh, sample_surface
+from ..world.robot import RobotKinematics
+from ..world.sensor import ray_directions
 from .interface import PlanRequest, PlanResult
 from .motion_planner import reached_goal
 
@@ -42,7 +42,7 @@ CACHE_VERSION = 1
 
 def _box_triangles(center, size, yaw):
     """The 12 triangles of a box (vertices (8, 3), triangles (12, 3))."""
-    from ..pose import rot_z
+    from ..world.pose import rot_z
     h = 0.5 * np.asarray(size, float)
     V = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * h
     V = V @ rot_z(yaw).T + np.asarray(center, float)
@@ -59,7 +59,7 @@ class TruthScene:
     def __init__(self, sc: Scenario, mesh: ObjectMesh, stride: int = 1):
         import open3d as o3d
 
-        from ..scene import environment_boxes
+        from ..world.scene import environment_boxes
         self.scene = o3d.t.geometry.RaycastingScene()
         self.object_id = self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
                                                   o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)))
@@ -190,7 +190,7 @@ class OraclePlanner:
         return np.array([len(newly_covered(scene.object_hits(X), self.gt, todo)) for X in self.kin.camera_poses(q)])
 
     def plan(self, request: PlanRequest) -> PlanResult:
-        from ..motion import path_length
+        from ..world.motion import path_length
         from .candidates import free_candidates
         p = self.sc.planner
         times, stages = {}, {}

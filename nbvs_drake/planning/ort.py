@@ -15,10 +15,10 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping import view_metrics as K
-from ..motion import rollout, steer_together
-from . import bulk
+from ..world.motion import rollout, steer_together
+from . import neighbours, steer_kernels, tree_growth
 from .candidates import StateSampler
-from .clearance import COLLIDING, FREE, UNKNOWN
+from .certificate import COLLIDING, FREE, UNKNOWN
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, undecided_free
 from .rrt import ITERATIONS_PER_VERTEX, Tree, extend_batch
@@ -49,8 +49,8 @@ class ORTPlanner:
         paths_free = lambda paths: self.motion.tree_paths_free(paths, obstacles)  # noqa: E731
         budget = ITERATIONS_PER_VERTEX * p.strategy.vertices
         bulk_growth = self.motion.bulk_checks and obstacles.collision.certificate is not None
-        grid = bulk.TreeGrid(self.sc.robot.xy_bounds, tree.q.shape[0]) if bulk_growth else None
-        # each vertex's clearance margins (bulk._walk), where its edge's check computed them
+        grid = neighbours.TreeGrid(self.sc.robot.xy_bounds, tree.q.shape[0]) if bulk_growth else None
+        # each vertex's clearance margins (path_verdicts._walk), where its edge's check computed them
         margins = np.full((tree.q.shape[0], obstacles.collision.certificate.margin_size), -1.0) \
             if bulk_growth else None
         while tree.n < p.strategy.vertices + 1 and it < budget:
@@ -64,9 +64,9 @@ class ORTPlanner:
         return tree, it
 
     def _extend_bulk(self, tree: Tree, batch: np.ndarray, w: np.ndarray, obstacles: ObstacleModel,
-                     grid: bulk.TreeGrid, margins: np.ndarray):
+                     grid: neighbours.TreeGrid, margins: np.ndarray):
         """`extend_batch` with the steering and the checks of the whole batch in one numba call
-        (bulk.tree_extensions: the same nearest vertices, edges and verdicts); the edges it
+        (tree_growth.tree_extensions: the same nearest vertices, edges and verdicts); the edges it
         cannot decide go through MotionPlanner.tree_paths_free (the certificate, then Drake).
         The same vertices are added in the same order (their eq. 8 lengths equal to ~1e-15
         relative); their controls are computed when a path needs them. `margins` keeps each
@@ -75,8 +75,8 @@ class ORTPlanner:
         col = obstacles.collision
         grid.insert(tree.q, tree.n)
         with col.timed():
-            near, aim, new, verdict, length, first, offsets, und, end = bulk.tree_extensions(
-                tree.q, margins, np.ascontiguousarray(batch, float), w, p.tree_step, bulk.robot_params(rc),
+            near, aim, new, verdict, length, first, offsets, und, end = tree_growth.tree_extensions(
+                tree.q, margins, np.ascontiguousarray(batch, float), w, p.tree_step, steer_kernels.robot_params(rc),
                 kin.arm_lower, kin.arm_upper, *col.certificate.model, self.motion.tree_max_step,
                 col.counter, *grid.arrays, 4 * numba.get_num_threads())
         unknown = np.flatnonzero(verdict == UNKNOWN)

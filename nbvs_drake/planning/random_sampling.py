@@ -13,7 +13,7 @@ import numpy as np
 
 from ..config import Scenario
 from ..mapping import view_metrics as K
-from ..motion import path_length
+from ..world.motion import path_length
 from .candidates import free_candidates
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, reached_goal

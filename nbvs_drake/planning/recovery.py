@@ -40,10 +40,10 @@ import math
 import numpy as np
 
 from ..config import Scenario, resolve_sensor
-from ..motion import rollout, steer, wrap_angle
-from ..pose import apply_corrections
-from ..robot import RobotKinematics
-from ..state import NQ
+from ..world.motion import rollout, steer, wrap_angle
+from ..world.pose import apply_corrections
+from ..world.robot import RobotKinematics
+from ..world.state import NQ
 from .interface import PlanResult
 
 #: the look-at point of a view: this far along its optical axis (m), or where it meets W_box
@@ -150,7 +150,7 @@ def landmark_solids(sc: Scenario):
     vv = sc.localisation.verified_views
     if vv is None or not vv.landmarks.occlusion:
         return None
-    from ..registration import KnownSolids
+    from ..perception.registration import KnownSolids
     return KnownSolids.of(sc)
 
 
@@ -161,7 +161,7 @@ def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.rand
     given the object points' normals (`OccupancyMap.object_normals`, turned towards the camera
     that saw each point), (L, 6): each point with its surface normal (the environment's exact
     ones), for `landmarks_in_view`'s back-face test."""
-    from ..registration import RegistrationConfig, environment_model
+    from ..perception.registration import RegistrationConfig, environment_model
     model = environment_model(sc, RegistrationConfig())
     env = model.points.astype(float)
     obj = np.asarray(object_points, float).reshape(-1, 3)

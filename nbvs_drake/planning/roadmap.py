@@ -5,7 +5,7 @@ PRM in the spirit of OMPL's LazyPRM, with the edges of the steering function).
   (`planner.motion_planner.vertices`): uniform states, states with the arm tucked up (the compact pose
   for driving between the table and the chairs: base-first sampling), and Gaussian pairs near the
   obstacles (the free one of two nearby states of which one is blocked: the narrow passages).
-  Each is proved free by the conservative model (planning/bulk.py). The chairs and the table do
+  Each is proved free by the conservative model (planning/path_verdicts.py). The chairs and the table do
   not move, so the vertices and the edges stay for the whole mission.
 - **Edges** join each vertex to its `planner.motion_planner.neighbors` nearest in the weighted metric
   of eq. 8; an edge a -> b is the steering function's exact control sequence
@@ -31,9 +31,9 @@ import dataclasses as dc
 
 import numpy as np
 
-from ..motion import TUCK_ARM, rollout, steer_together
-from . import bulk
-from .clearance import COLLIDING, FREE, UNKNOWN
+from ..world.motion import TUCK_ARM, rollout, steer_together
+from . import neighbours, steer_kernels
+from .certificate import COLLIDING, FREE, UNKNOWN
 
 UNCHECKED = 2
 #: states sampled around a goal the roadmap does not reach, once per plan (its bounded share)
@@ -66,7 +66,7 @@ class Roadmap:
         self.sampler = sampler
         p = sc.planner
         self.w = np.asarray(p.weights, float)
-        self.rc = bulk.robot_params(sc.robot)
+        self.rc = steer_kernels.robot_params(sc.robot)
         self.k = p.motion_planner.neighbors
         self.V = np.zeros((0, 8))
         self.src = np.zeros(0, np.int64)
@@ -134,7 +134,7 @@ class Roadmap:
         e = np.array(new, np.int64)
         self.src = np.concatenate([self.src, e[:, 0]])
         self.dst = np.concatenate([self.dst, e[:, 1]])
-        self.length = np.concatenate([self.length, bulk.edge_lengths(self.V[e[:, 0]], self.V[e[:, 1]], self.w,
+        self.length = np.concatenate([self.length, steer_kernels.edge_lengths(self.V[e[:, 0]], self.V[e[:, 1]], self.w,
                                                                      self.rc)])
         self.state = np.concatenate([self.state, np.full(len(e), UNCHECKED, np.int8)])
 
@@ -143,7 +143,7 @@ class Roadmap:
         "both" directions, "out" (idx -> neighbour) or "in" (neighbour -> idx)."""
         if len(idx) == 0 or among == 0:
             return
-        nn = bulk.knn(self.V[:among], self.V[idx], self.w, min(k, among), False)
+        nn = neighbours.knn(self.V[:among], self.V[idx], self.w, min(k, among), False)
         a = np.repeat(idx, nn.shape[1])
         b = nn.reshape(-1)
         keep = b >= 0
@@ -311,8 +311,9 @@ class Roadmap:
                 A = np.stack([Q[i - 1], cand])
                 B = np.stack([cand, Q[i + 1]])
                 st.shortcuts_checked += 2
-                old = bulk.edge_lengths(np.stack([Q[i - 1], Q[i]]), np.stack([Q[i], Q[i + 1]]), self.w, self.rc).sum()
-                new = bulk.edge_lengths(A, B, self.w, self.rc).sum()
+                old = steer_kernels.edge_lengths(np.stack([Q[i - 1], Q[i]]), np.stack([Q[i], Q[i + 1]]), self.w,
+                                                 self.rc).sum()
+                new = steer_kernels.edge_lengths(A, B, self.w, self.rc).sum()
                 if new < old and np.all(collision.bulk_edges(A, B, self.rc) == FREE):
                     best = cand
                     break

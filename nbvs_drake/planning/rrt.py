@@ -18,7 +18,7 @@ import numba as nb
 import numpy as np
 
 from ..config import RobotConfig
-from ..motion import rollout, steer_together, wrap_angle
+from ..world.motion import rollout, steer_together, wrap_angle
 
 StateSampler = Callable[[np.random.Generator, int], np.ndarray]
 
@@ -149,7 +149,7 @@ def extend(tree: Tree, q_target: np.ndarray, step: float, w: np.ndarray, rc: Rob
            path_free: PathFree, clip_arm: Callable[[np.ndarray], np.ndarray]) -> int | None:
     """EXTEND: from the nearest vertex towards q_target by at most `step` (weighted metric);
     adds the new vertex when its steering edge is collision free. Returns its index or None."""
-    from ..motion import path_length
+    from ..world.motion import path_length
     e = _steer_edge(tree, q_target, step, w, rc, clip_arm)
     if e is None or not path_free(e[2]):
         return None
@@ -164,7 +164,7 @@ def extend_batch(tree: Tree, targets: np.ndarray, step: float, w: np.ndarray, rc
     vertices are found before any of the batch is added), with the B edges checked in one
     call of `paths_free`; the free ones are added in the targets' order, up to the tree's
     capacity. Returns the number of vertices added. B = 1 is `extend`."""
-    from ..motion import path_length
+    from ..world.motion import path_length
     cands = [e for e in (_steer_edge(tree, q, step, w, rc, clip_arm) for q in targets) if e is not None]
     if not cands:
         return 0

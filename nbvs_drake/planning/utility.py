@@ -20,9 +20,9 @@ import numpy as np
 
 from ..config import Expected, Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import plan_legs, plans_in_legs
-from . import bulk
-from .clearance import FREE, UNKNOWN
+from ..world.motion import plan_legs, plans_in_legs
+from . import path_verdicts
+from .certificate import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel
@@ -76,7 +76,7 @@ class ExpectedUtilityScore:
     def _rollout_verdicts(self, nominal: np.ndarray, obstacles: ObstacleModel):
         """verdicts(states (k, L, 8), steps (L,)) -> int8 (k, L): FREE, COLLIDING or UNKNOWN
         (Drake decides) of the rollout states at those steps of the plan (1..m), by
-        `bulk.rollout_verdicts`: a state that differs from the nominal state of its step by a
+        `path_verdicts.rollout_verdicts`: a state that differs from the nominal state of its step by a
         planar rigid motion (the Table 4 noise leaves the arm exact) has the nominal's
         self-distances, and only the parts of the robot that the motion may bring within their
         clearance (clearance.py, `_part_clearances`) are tested against the environment. Without
@@ -89,7 +89,7 @@ class ExpectedUtilityScore:
         c, r = cert.part_clearances(nominal)
         self.checks_s += time.perf_counter() - t
         col = obstacles.collision
-        return lambda s, steps: bulk.rollout_verdicts(np.ascontiguousarray(s, float), nominal[steps - 1],
+        return lambda s, steps: path_verdicts.rollout_verdicts(np.ascontiguousarray(s, float), nominal[steps - 1],
                                                       c[steps - 1], r[steps - 1], *cert.model, col.counter)
 
     def registered_cov(self, belief_cov=None) -> np.ndarray:
@@ -118,7 +118,6 @@ class ExpectedUtilityScore:
         rollouts start from its nominal start (the first from the belief and its spread, the
         others re-localised by the frame at the previous leg's end); the candidate is feasible
         when every leg is, and its value is the last leg's."""
-        p = self.sc.planner
         omap = request.omap
         if self.sc.localisation.verified_views is not None:
             final_utility = self._verified_utility(request, cand)
@@ -157,7 +156,6 @@ class ExpectedUtilityScore:
         """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
         states (m+1, 8); k, max_collision_rate and free_start (planner.utility.free_start) default
         to the planner's."""
-        p = self.sc.planner
         k = self.u.samples if k is None else k
         rate = self.u.max_collision_rate if max_collision_rate is None else max_collision_rate
         # the nominal path's escape from a colliding start

@@ -13,8 +13,8 @@ import numpy as np
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..mapping.voxel_sorting import unknown_clusters
-from ..robot import CAMERA_BODY, RobotKinematics
-from ..state import NQ
+from ..world.robot import CAMERA_BODY, RobotKinematics
+from ..world.state import NQ
 from .candidates import StateSampler
 
 

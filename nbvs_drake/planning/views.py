@@ -12,8 +12,8 @@ from ..config import Scenario, resolve_sensor
 from ..mapping import view_metrics as K
 from ..mapping.occupancy import OccupancyMap
 from ..mapping.voxel import UNKNOWN, classes_grid
-from ..robot import RobotKinematics
-from ..sensor import ray_directions
+from ..world.robot import RobotKinematics
+from ..world.sensor import ray_directions
 
 
 class ViewEvaluator:
@@ -41,7 +41,7 @@ class ViewEvaluator:
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
         full, _, t_far = ray_directions(sc.sensor, 1)  # the outermost pixel centres bound every stride's rays
         self.frustum = (K.frustum_planes(full), float(t_far.max()))
-        from ..sensor import intrinsics
+        from ..world.sensor import intrinsics
         self.pitch = 1.0 / intrinsics(sc.sensor)[2]  # rad per pixel at the image centre
         #: the coverage radius r of the "coverage" information term (0: not computed)
         self.coverage_radius = sc.planner.coverage.radius if sc.planner.metric == "coverage" else 0.0
@@ -106,7 +106,7 @@ class ViewEvaluator:
     def voxel_sorting_score(self, omap: OccupancyMap, q: np.ndarray, w: float = 0.5) -> np.ndarray:
         """Santos et al. 2020's score of states q (voxel-sorted ray casting), within the sensor's range."""
         from ..mapping import voxel_sorting
-        from ..sensor import intrinsics
+        from ..world.sensor import intrinsics
         q = np.atleast_2d(q)
         if len(q) == 0:
             return np.zeros(0)

@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..planning.collision import CollisionModel
-from ..state import NQ
+from ..world.state import NQ
 from .messages import ControllerStatus
 
 

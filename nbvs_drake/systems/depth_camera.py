@@ -22,8 +22,8 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import PixelType, RgbdSensor
 
 from ..config import SensorConfig, resolve_sensor
-from ..robot import CAMERA_BODY, RobotKinematics
-from ..sensor import axial_noise_sigma, camera_info, render_camera_info
+from ..world.robot import CAMERA_BODY, RobotKinematics
+from ..world.sensor import axial_noise_sigma, camera_info, render_camera_info
 
 RENDERER = "vtk"
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from ..motion import euler_step
-from ..robot import RobotKinematics
-from ..state import NQ, NU
+from ..world.motion import euler_step
+from ..world.robot import RobotKinematics
+from ..world.state import NQ, NU
 
 
 class KinematicPlant(LeafSystem):

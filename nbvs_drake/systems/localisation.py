@@ -12,9 +12,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
 from ..config import Scenario, resolve_sensor
 from ..mapping.occupancy import OccupancyMap
-from ..motion import REGISTERED_SIGMA, ControlSequence
-from ..pose import EXACT_POSE_VAR, Correction
-from ..registration import (
+from ..perception.registration import (
     KnownSolids,
     RegistrationModel,
     ScanView,
@@ -24,9 +22,11 @@ from ..registration import (
     register_scan,
     registration_config,
 )
-from ..robot import RobotKinematics
-from ..sensor import clean_scan, no_return_rays, ray_directions
-from ..state import NQ
+from ..world.motion import REGISTERED_SIGMA, ControlSequence
+from ..world.pose import EXACT_POSE_VAR, Correction
+from ..world.robot import RobotKinematics
+from ..world.sensor import clean_scan, no_return_rays, ray_directions
+from ..world.state import NQ
 from .messages import Belief, ControllerStatus, RegisteredScan
 
 

@@ -6,8 +6,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import EventStatus, LeafSystem
 
-from .. import meshcat_draw
 from ..mapping.occupancy import OccupancyMap
+from ..outputs import meshcat_draw
 from .messages import PlanReport
 
 

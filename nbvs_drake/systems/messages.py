@@ -17,7 +17,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from ..state import NQ
+from ..world.state import NQ
 
 
 class _Immutable:

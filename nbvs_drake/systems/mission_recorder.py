@@ -10,9 +10,9 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from ..evaluation import coverage, plan_prediction, scan_outcome
 from ..mapping.occupancy import OccupancyMap
-from ..pose import state_error
+from ..perception.evaluation import coverage, plan_prediction, scan_outcome
+from ..world.pose import state_error
 from .messages import Belief, ControllerStatus, PlanReport, ScanReport
 
 

@@ -11,8 +11,8 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..config import Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..motion import ControlSequence
 from ..planning.interface import Planner, PlanRequest, PlanResult
+from ..world.motion import ControlSequence
 from .messages import Belief, PlanReport, rounded_state
 
 
@@ -139,7 +139,7 @@ class NBVSPlanner(LeafSystem):
     def _legs(self, controls) -> list[int]:
         """Where the plan's legs end (motion.plan_legs: mission.legs with verified views under
         noise), else [m]."""
-        from ..motion import plan_legs
+        from ..world.motion import plan_legs
         if self.recovery is None:
             return [len(controls)]
         return plan_legs(self.sc, controls)
@@ -178,7 +178,7 @@ class NBVSPlanner(LeafSystem):
         """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of
         its own (mission.leg_turns, motion.min_leg_turn): that turn, and the leg's end ahead
         of `legs`."""
-        from ..motion import leg_ends, min_leg_turn
+        from ..world.motion import leg_ends, min_leg_turn
         n = min_leg_turn(self.sc)
         ends = leg_ends(res.controls, n, after_drives=False) if n else [len(res.controls)]
         if len(ends) == 1:

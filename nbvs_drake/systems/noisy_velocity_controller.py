@@ -7,8 +7,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..config import NoiseConfig
-from ..motion import ControlSequence, sample_control_noise
-from ..state import NU
+from ..world.motion import ControlSequence, sample_control_noise
+from ..world.state import NU
 from .messages import ControllerStatus
 
 

@@ -7,8 +7,8 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from ..config import Scenario, resolve_sensor
-from ..reconstruction import depth_from_points, fuse_tsdf
-from ..sensor import intrinsics
+from ..perception.reconstruction import depth_from_points, fuse_tsdf
+from ..world.sensor import intrinsics
 from .messages import RegisteredScan
 
 

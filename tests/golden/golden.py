@@ -93,8 +93,8 @@ def golden_path(name: str) -> Path:
 
 
 def run(name: str, out: Path) -> dict:
+    from nbvs_drake.app.mission import run_mission
     from nbvs_drake.config import load_scenario
-    from nbvs_drake.mission import run_mission
     scenario, seed, overrides = RUNS[name]
     from nbvs_drake.resources import scenario_path  # noqa: F401 - built-in names
     sc = load_scenario(scenario_path(scenario) if scenario else None, seed=seed, settings=overrides)

@@ -85,7 +85,7 @@ def mesh_metrics(V: np.ndarray, T: np.ndarray, gt_V: np.ndarray, gt_T: np.ndarra
     triangles."""
     if len(T) == 0:
         return _score(np.zeros(0), np.full(len(gt_points), np.inf), voxel)
-    from .objects import ObjectMesh, sample_surface
+    from ..world.objects import ObjectMesh, sample_surface
     samples = sample_surface(ObjectMesh(np.asarray(V, float), np.asarray(T, np.int32)), len(gt_points), rng)
     return _score(surface_distance(gt_V, gt_T, samples), surface_distance(V, T, gt_points), voxel)
 
@@ -173,7 +173,7 @@ def canonical_mesh(V: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 def write_mesh_ply(path, V: np.ndarray, T: np.ndarray):
     """A binary PLY of the triangle mesh (written whole: temporary file, then rename)."""
-    from .files import write_atomic
+    from ..files import write_atomic
     V = np.asarray(V, "<f4").reshape(-1, 3)
     T = np.asarray(T, "<i4").reshape(-1, 3)
     head = (f"ply\nformat binary_little_endian 1.0\ncomment nbvs_drake model_mesh (TSDF fusion, world frame, m)\n"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .mapping.occupancy import OCCUPIED, UNKNOWN, OccupancyMap
+from ..mapping.occupancy import OCCUPIED, UNKNOWN, OccupancyMap
 
 UNKNOWN_RGBA = (1.0, 0.85, 0.05, 1.0)
 OCCUPIED_RGBA = (0.1, 0.3, 1.0, 1.0)

@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Scenario, resolve_sensor
-from .mapping.occupancy import OccupancyMap
-from .objects import build_object
-from .robot import RobotKinematics
-from .sensor import clean_scan, no_return_rays, ray_directions
+from ..config import Scenario, resolve_sensor
+from ..mapping.occupancy import OccupancyMap
+from ..world.objects import build_object
+from ..world.robot import RobotKinematics
+from ..world.sensor import clean_scan, no_return_rays, ray_directions
 
 
 @dc.dataclass
@@ -31,8 +31,8 @@ class ScanRenderer:
     def __init__(self, sc: Scenario, work_dir: Path, kin: RobotKinematics | None = None):
         from pydrake.systems.framework import DiagramBuilder
 
-        from .diagram import add_robot_and_scene
-        from .systems.depth_camera import CameraPose, add_depth_camera
+        from ..app.diagram import add_robot_and_scene
+        from ..systems.depth_camera import CameraPose, add_depth_camera
 
         self.sc = sc
         self.kin = kin or RobotKinematics(sc.robot.urdf)

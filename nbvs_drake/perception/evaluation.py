@@ -30,7 +30,7 @@ def scan_outcome(prev, cur) -> dict:
     the unknown voxels it revealed (net, in voxels and m^3), its object points, and the
     overlap measured as the share of those points that landed in voxels already occupied
     before the scan (what the registration filter predicts with its overlap)."""
-    from .mapping.voxel import OCCUPIED
+    from ..mapping.voxel import OCCUPIED
     revealed = prev.unknown_count() - cur.unknown_count()
     new = np.asarray(cur.object_points[len(prev.object_points):], float)
     overlap = 0.0

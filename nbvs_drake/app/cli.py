@@ -6,12 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
-from .errors import NbvsError
+from ..errors import NbvsError
 
 
 def _only(specs: list[str]) -> dict:
     """--only FACTOR=LABEL[,LABEL] options as {factor: [labels]}."""
-    from .experiments import ExperimentError
+    from ..experiments import ExperimentError
     out = {}
     for spec in specs:
         f, sep, labels = spec.partition("=")
@@ -22,8 +22,8 @@ def _only(specs: list[str]) -> dict:
 
 
 def _cmd_reconstruct(args):
+    from ..errors import quiet_library_logs
     from .api import reconstruct
-    from .errors import quiet_library_logs
     quiet_library_logs()
     meshcat = None
     if args.meshcat:
@@ -40,9 +40,9 @@ def _cmd_reconstruct(args):
 
 
 def _cmd_diagram(args):
-    from .config import load_scenario
-    from .resources import builtin_scenarios, diagrams_dir, source_checkout
-    from .wiring import write_wiring
+    from ..config import load_scenario
+    from ..outputs.wiring import write_wiring
+    from ..resources import builtin_scenarios, diagrams_dir, source_checkout
     # beside the built-in scenarios in a source checkout (the repository's diagrams/); a
     # wheel install does not write into its own package: ./diagrams instead
     folder = diagrams_dir() if source_checkout() else Path("diagrams")
@@ -57,8 +57,8 @@ def _cmd_diagram(args):
 def _cmd_experiment(args):
     import shlex
 
-    from .experiments import ExperimentError, listing, load_definition, run_experiment, with_objects, write_report
-    from .experiments.runner import make_executor
+    from ..experiments import ExperimentError, listing, load_definition, run_experiment, with_objects, write_report
+    from ..experiments.runner import make_executor
     out = args.out or "results/experiments"
     if args.list:
         print(listing())
@@ -98,12 +98,12 @@ def _cmd_experiment(args):
 
 
 def _cmd_config_reference(args) -> None:
-    from .config.reference import write_reference
+    from ..config.reference import write_reference
     print(write_reference(Path(args.out)))
 
 
 def main(argv=None) -> int:
-    from .resources import builtin_scenarios
+    from ..resources import builtin_scenarios
     ap = argparse.ArgumentParser(prog="nbvs", description="Next-best-view/state planning on a Drake diagram")
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("reconstruct", help="reconstruct the scenario's object; write model, metrics and plots")
@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     b.add_argument("what", choices=["visibility", "planning", "motion", "collision", "prediction", "oracle"])
     b.add_argument("--json", action="store_true", help="one line of JSON")
     b.add_argument("--views", type=int, default=400, help="views per timing batch")
-    b.set_defaults(func=lambda a: __import__("nbvs_drake.bench", fromlist=["main"]).main(a))
+    b.set_defaults(func=lambda a: __import__("nbvs_drake.app.bench", fromlist=["main"]).main(a))
     e = sub.add_parser("experiment", help="run a paper's experiment (many runs) and write its table and figures",
                        description="nbvs experiment NAME... runs what is missing of each experiment into "
                                    "OUT/NAME/ (OUT/NAME_quick/ with --quick): runs/<run>/ per run, table.md, "

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from .config import Scenario
+from ..config import Scenario
 
 TABLE_THICKNESS = 0.04
 LEG = 0.04

@@ -16,7 +16,7 @@ import dataclasses as dc
 import json
 from pathlib import Path
 
-from .errors import NbvsError, RunExistsError
+from ..errors import NbvsError, RunExistsError
 
 #: the files of a run folder: RunResult.paths key -> file name (`mission.run_mission` writes them)
 OUTPUTS = {
@@ -66,7 +66,7 @@ class RunResult:
 
 
 def _resolve_scenario(scenario, seed, overrides):
-    from .config import Scenario, apply_setting, load_scenario, validate
+    from ..config import Scenario, apply_setting, load_scenario, validate
     if isinstance(scenario, Scenario):
         sc = copy.deepcopy(scenario)  # the caller's object is left as it was
         if seed is not None:
@@ -122,7 +122,7 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     sc = _resolve_scenario(scenario, seed, tuple(overrides))
     out = Path(out) if out is not None else Path("results") / sc.name
     _prepare_output(out, overwrite)
-    from .errors import Interrupted, InterruptGuard
+    from ..errors import Interrupted, InterruptGuard
     from .mission import run_mission
     guard = InterruptGuard()
     try:

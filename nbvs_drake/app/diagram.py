@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Scenario
-from .mapping.occupancy import OccupancyMap
-from .objects import ObjectMesh, build_object, ground_truth_points
-from .planning import make_planner
-from .planning.collision import CollisionModel
-from .robot import RobotKinematics, add_robot
-from .scene import add_environment
+from ..config import Scenario
+from ..mapping.occupancy import OccupancyMap
+from ..planning import make_planner
+from ..planning.collision import CollisionModel
+from ..world.objects import ObjectMesh, build_object, ground_truth_points
+from ..world.robot import RobotKinematics, add_robot
+from ..world.scene import add_environment
 
 
 @dc.dataclass
@@ -46,7 +46,7 @@ def add_robot_and_scene(builder, sc: Scenario, object_obj: str | None):
     from pydrake.multibody.plant import MultibodyPlant
     from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-    from .systems.depth_camera import add_renderer
+    from ..systems.depth_camera import add_renderer
 
     scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     add_renderer(scene_graph)
@@ -66,15 +66,15 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     pydrake Meshcat for the live view (MeshcatVisualizer + MeshcatMapView), None: none."""
     from pydrake.systems.framework import DiagramBuilder
 
-    from .systems.collision_monitor import CollisionMonitor
-    from .systems.depth_camera import CameraPose, add_depth_camera
-    from .systems.kinematic_plant import KinematicPlant
-    from .systems.localisation import Localisation
-    from .systems.mission_recorder import MissionRecorder
-    from .systems.nbvs_planner import NBVSPlanner
-    from .systems.noisy_velocity_controller import NoisyVelocityController
-    from .systems.octree_mapper import OctreeMapper
-    from .systems.surface_fusion import SurfaceFusion
+    from ..systems.collision_monitor import CollisionMonitor
+    from ..systems.depth_camera import CameraPose, add_depth_camera
+    from ..systems.kinematic_plant import KinematicPlant
+    from ..systems.localisation import Localisation
+    from ..systems.mission_recorder import MissionRecorder
+    from ..systems.nbvs_planner import NBVSPlanner
+    from ..systems.noisy_velocity_controller import NoisyVelocityController
+    from ..systems.octree_mapper import OctreeMapper
+    from ..systems.surface_fusion import SurfaceFusion
 
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -100,7 +100,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
     recovery = None
     if sc.localisation.verified_views is not None:
-        from .planning import make_recovery
+        from ..planning import make_recovery
         recovery = make_recovery(sc, kin, planner_impl)
     planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0, recovery))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
@@ -139,7 +139,7 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
         builder.Connect(loc.GetOutputPort("belief"), rec.GetInputPort("belief"))
         systems["recorder"] = rec
     if meshcat is not None:  # live view (nbvs reconstruct --meshcat)
-        from .systems.meshcat_map_view import add_meshcat_views
+        from ..systems.meshcat_map_view import add_meshcat_views
         systems["meshcat_visualizer"], systems["meshcat_map_view"] = add_meshcat_views(
             builder, meshcat, scene_graph, mapper, planner, kin, OccupancyMap.for_scenario(sc), dt, fusion)
     diagram = builder.Build()

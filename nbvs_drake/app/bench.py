@@ -10,14 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Deterministic, Expected, Ort, Roadmap, RrtExtExt, load_scenario
-from .mapping import view_metrics as K
-from .mapping.occupancy import OccupancyMap
-from .planning import PlanRequest, make_planner
-from .planning.candidates import StateSampler
-from .planning.collision import CollisionModel
-from .robot import RobotKinematics
-from .scanning import ScanRenderer
+from ..config import Deterministic, Expected, Ort, Roadmap, RrtExtExt, load_scenario
+from ..mapping import view_metrics as K
+from ..mapping.occupancy import OccupancyMap
+from ..perception.scanning import ScanRenderer
+from ..planning import PlanRequest, make_planner
+from ..planning.candidates import StateSampler
+from ..planning.collision import CollisionModel
+from ..world.robot import RobotKinematics
 
 
 def _best_of(fn, repeats: int) -> float:
@@ -63,7 +63,7 @@ def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000
     import numba
     from scipy.stats import spearmanr
 
-    from .planning.views import ViewEvaluator, ranking_score
+    from ..planning.views import ViewEvaluator, ranking_score
     sc = load_scenario()
     kin = RobotKinematics(sc.robot.urdf)
     rng = np.random.default_rng(seed)
@@ -339,9 +339,9 @@ def bench_motion(seed: int = 0) -> dict:
     of weighted_dist, path_free's coarse first pass vs one pass over every state (RRT edges
     in the cluttered room from its start, most of them blocked), and one RRT Ext-Ext across
     the table there (500 vertices at most; seconds, iterations per second)."""
-    from .motion import euler_step, rollout, steer_together
-    from .planning.motion_planner import MotionPlanner, ObstacleModel
-    from .planning.rrt import Tree, rrt_ext_ext, weighted_dist
+    from ..planning.motion_planner import MotionPlanner, ObstacleModel
+    from ..planning.rrt import Tree, rrt_ext_ext, weighted_dist
+    from ..world.motion import euler_step, rollout, steer_together
     rng = np.random.default_rng(seed)
     out = {}
 
@@ -409,8 +409,8 @@ def bench_prediction(objects=("teapot", "bunny"), seed: int = 1, n_best: int = 6
     predicted and the measured gain over the rendered candidates, and what the view predicted
     best gave against the best of them, for the coverage gain's model of unknown space and,
     as the baseline of the same run, the first model (`uniform_`)."""
-    from .config import load_scenario
-    from .diagnostics import candidate_gains
+    from ..config import load_scenario
+    from ..outputs.diagnostics import candidate_gains
     out = {"seed": seed, "n_best": n_best, "n_random": n_random}
     for obj in objects:
         settings = ["scene.object.kind=bunny", "scene.object.size=-1"] if obj == "bunny" else [
@@ -424,14 +424,14 @@ def bench_prediction(objects=("teapot", "bunny"), seed: int = 1, n_best: int = 6
 
 
 def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3000) -> dict:
-    """Collision checks with the free-space certificate (planning/clearance.py) against Drake
+    """Collision checks with the free-space certificate (planning/certificate.py) against Drake
     alone, in the same run and with the same verdicts: random states of the default scene
     (W_box as the obstacle) and of the cluttered room (us per state, the share the
     certificate proves free), and the Object Reconstruction Tree's growth from the default
     start with Drake alone, with the certificate and with the numba growth (the same tree;
     seconds)."""
-    from .planning.motion_planner import MotionPlanner, ObstacleModel
-    from .planning.ort import ORTPlanner
+    from ..planning.motion_planner import MotionPlanner, ObstacleModel
+    from ..planning.ort import ORTPlanner
     out = {}
     kin = RobotKinematics()
     for name in ("default", "cluttered_room"):
@@ -451,7 +451,7 @@ def bench_collision(seed: int = 0, n_states: int = 20_000, ort_vertices: int = 3
     times, trees, visits = {}, {}, {}
     # Drake alone; the certificate with the Python growth (rrt.extend_batch) and the targets'
     # director-ray test in numpy, as before the bulk kernels; the numba growth
-    # (bulk.tree_extensions: clearance margins, only undecided states to Drake) with the numba
+    # (tree_growth.tree_extensions: clearance margins, only undecided states to Drake) with the numba
     # director-ray test
     # (the bulk growth spreads a batch's extensions over the numba threads; "bulk_1thread": on one)
     import numba
@@ -497,11 +497,11 @@ def bench_oracle(objects=("teapot", "bunny", "dragon"), n_poses: int = 2000, sca
     import tempfile
     import time
 
-    from .config import load_scenario
+    from ..config import load_scenario
+    from ..planning.oracle import coverage_ceiling
+    from ..world.objects import build_object
+    from ..world.robot import RobotKinematics
     from .mission import run_mission
-    from .objects import build_object
-    from .planning.oracle import coverage_ceiling
-    from .robot import RobotKinematics
     kin = RobotKinematics()
     out = {"n_poses": n_poses, "objects": {}}
     for obj in objects:

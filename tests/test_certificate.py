@@ -1,4 +1,4 @@
-"""The free-space certificate in front of Drake's collision checks (planning/clearance.py):
+"""The free-space certificate in front of Drake's collision checks (planning/certificate.py):
 its forward kinematics is Drake's, it never calls a state free that Drake finds in collision
 or in collision that Drake finds free
 (random states and states within ~1e-6 of a contact, in every kind of world the planner and
@@ -9,9 +9,9 @@ import pytest
 from conftest import drake_free, near_contacts, random_states
 
 from nbvs_drake.config import load_scenario
-from nbvs_drake.objects import build_object
-from nbvs_drake.planning.clearance import COLLIDING, FREE, ROBOT_BODIES
+from nbvs_drake.planning.certificate import COLLIDING, FREE, ROBOT_BODIES
 from nbvs_drake.planning.collision import CollisionModel
+from nbvs_drake.world.objects import build_object
 
 
 def test_forward_kinematics_is_drakes(kin):

@@ -26,9 +26,9 @@ import dataclasses as dc
 import numba
 import numpy as np
 
-from .config import Scenario
-from .motion import rollout, sample_control_noise, wrap_angle
-from .pose import Correction, rot_z
+from ..config import Scenario
+from ..world.motion import rollout, sample_control_noise, wrap_angle
+from ..world.pose import Correction, rot_z
 
 
 @dc.dataclass
@@ -133,7 +133,7 @@ def environment_model(sc: Scenario, cfg: RegistrationConfig) -> RegistrationMode
     registered against before any scan is merged. The robot knows this environment (the
     planner checks collisions with it), and its straight edges fix the pose where the object
     alone cannot (a body of revolution seen from one side)."""
-    from .scene import environment_boxes
+    from ..world.scene import environment_boxes
     faces = [box_surface_points(b.center, b.size, b.yaw, cfg.model_voxel)
              for b in environment_boxes(sc) if b.name != "floor"]
     if not faces:
@@ -154,7 +154,7 @@ class KnownSolids:
 
     @staticmethod
     def of(sc: Scenario) -> "KnownSolids":
-        from .scene import box_arrays
+        from ..world.scene import box_arrays
         return KnownSolids(*box_arrays(sc))
 
     def seen_through(self, origin: np.ndarray, P: np.ndarray, tol: float) -> np.ndarray:

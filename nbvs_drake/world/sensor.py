@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from .config import SensorConfig, resolve_sensor
+from ..config import SensorConfig, resolve_sensor
 
 
 def intrinsics(sensor: SensorConfig) -> tuple[int, int, float, float, float, float]:

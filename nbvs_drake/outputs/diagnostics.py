@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Scenario
+from ..config import Scenario
 
 
 def _ranks(a: np.ndarray) -> np.ndarray:
@@ -27,15 +27,15 @@ def candidate_gains(sc: Scenario, views=(), n_best: int = 60, n_random: int = 60
     random are rendered. Returns the predicted gains (m^2), the measured gains (share of the
     ground truth newly within 3 mm), their rank correlation (Spearman), and what the view
     predicted best gave against the best measured."""
-    from .evaluation import coverage
-    from .mapping import view_metrics as K
-    from .mapping.occupancy import OccupancyMap
-    from .objects import build_object, ground_truth_points
-    from .planning.candidates import StateSampler
-    from .planning.motion_planner import PlanningObstacles
-    from .planning.views import ViewEvaluator
-    from .robot import RobotKinematics
-    from .scanning import ScanRenderer
+    from ..mapping import view_metrics as K
+    from ..mapping.occupancy import OccupancyMap
+    from ..perception.evaluation import coverage
+    from ..perception.scanning import ScanRenderer
+    from ..planning.candidates import StateSampler
+    from ..planning.motion_planner import PlanningObstacles
+    from ..planning.views import ViewEvaluator
+    from ..world.objects import build_object, ground_truth_points
+    from ..world.robot import RobotKinematics
 
     kin = RobotKinematics(sc.robot.urdf)
     with tempfile.TemporaryDirectory() as tmp:

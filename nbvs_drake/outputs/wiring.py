@@ -7,13 +7,13 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from .config import Scenario
+from ..config import Scenario
 
 
 def write_wiring(sc: Scenario, out_base: Path) -> list[Path]:
     """Writes OUT.dot, and OUT.svg and OUT.png when Graphviz's `dot` is installed. Returns
     the paths written."""
-    from .diagram import build_mission_diagram
+    from ..app.diagram import build_mission_diagram
     out_base = Path(out_base)
     with tempfile.TemporaryDirectory() as tmp:
         md = build_mission_diagram(sc, Path(tmp), log=None)

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ScenarioError
-from .resources import model_path
+from ..errors import ScenarioError
+from ..resources import model_path
 
 ARM_JOINTS = ["katana_j1", "katana_j2", "katana_j3", "katana_j4", "katana_j5"]
 BASE_JOINT = "base"

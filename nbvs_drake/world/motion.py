@@ -10,7 +10,7 @@ import math
 import numpy as np
 from scipy.special import ndtr, ndtri
 
-from .config import REGISTERED_SIGMA, NoiseConfig, RobotConfig  # noqa: F401 (REGISTERED_SIGMA: re-exported)
+from ..config import REGISTERED_SIGMA, NoiseConfig, RobotConfig  # noqa: F401 (REGISTERED_SIGMA: re-exported)
 from .state import NQ, NU
 
 

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import OBJECT_KINDS, ObjectConfig, Scenario
-from .errors import MeshError, ScenarioError
-from .resources import model_path
+from ..config import ObjectConfig, Scenario
+from ..errors import MeshError, ScenarioError
+from ..resources import model_path
 
 
 @dc.dataclass

@@ -31,7 +31,7 @@ import math
 import numba as nb
 import numpy as np
 
-from ..robot import _X
+from ..world.robot import _X
 
 #: a pair counts as separated only beyond its padding plus this margin (m): rounding of the two
 #: forward kinematics (this module's and Drake's) is ~1e-15 m
@@ -76,7 +76,7 @@ class FreeCertificate:
     def __init__(self, diagram, checker, kin):
         from pydrake.geometry import Box, Cylinder, Sphere
 
-        from ..robot import ARM_JOINTS  # kin.joint_fixed holds their (X_PF, axis): base_link -> ... -> link5
+        from ..world.robot import ARM_JOINTS  # kin.joint_fixed holds their (X_PF, axis): base_link -> ... -> link5
         plant, sg = diagram.plant(), diagram.scene_graph()
         inspector = sg.model_inspector()
         bodies = [plant.GetBodyByName(n) for n in ROBOT_BODIES]
@@ -135,7 +135,7 @@ class FreeCertificate:
         R = np.stack([self.geometry_poses(q)[:, :3, 2] for q in qs])  # (16, G, 3) axes
         self.g_vert = np.array(g_cyl, bool) & np.all(np.abs(R[:, :, 2]) > 1 - 1e-12, axis=0)
         # ... and keep their height: a chain of turns that keeps an axis vertical turns about
-        # vertical axes only (`_free_margins` relies on it: planar motion leaves their vertical gaps)
+        # vertical axes only (`free_margins` relies on it: planar motion leaves their vertical gaps)
         z = np.stack([self.geometry_poses(q)[:, 2, 3] for q in qs])
         self.g_vert &= np.ptp(z, axis=0) < 1e-12
         world = plant.world_body()
@@ -261,7 +261,7 @@ def _body_poses(q, X_PF, axes):
 
 
 @nb.njit(cache=True, inline="always")
-def _point_box(px, py, pz, e_R, e_p, e_h, m):
+def point_box(px, py, pz, e_R, e_p, e_h, m):
     """Distance from a point to the oriented box m (e_R[m]: its axes as columns). Scalar
     indexing throughout: a sub-array view costs numba a reference count per use."""
     dx, dy, dz = px - e_p[m, 0], py - e_p[m, 1], pz - e_p[m, 2]
@@ -274,7 +274,7 @@ def _point_box(px, py, pz, e_R, e_p, e_h, m):
 
 
 @nb.njit(cache=True, inline="always")
-def _vertical_cylinder_box(px, py, pz, r, hh, e_R, e_p, e_h, m):
+def vertical_cylinder_box(px, py, pz, r, hh, e_R, e_p, e_h, m):
     """Distance from a vertical cylinder (centre, radius r, half length hh) to the box m, turned
     only about z: exact (disc x interval against rectangle x interval)."""
     dx, dy, dz = px - e_p[m, 0], py - e_p[m, 1], pz - e_p[m, 2]
@@ -288,7 +288,7 @@ def _vertical_cylinder_box(px, py, pz, r, hh, e_R, e_p, e_h, m):
 
 
 @nb.njit(cache=True, inline="always")
-def _vertical_cylinder_box_overlap(px, py, pz, r, hh, e_R, e_p, e_h, m, s):
+def vertical_cylinder_box_overlap(px, py, pz, r, hh, e_R, e_p, e_h, m, s):
     """Whether the vertical cylinder and the box m (turned about z), each shrunk by s on every
     side, still overlap (then the two reach s or more into each other)."""
     dx, dy, dz = px - e_p[m, 0], py - e_p[m, 1], pz - e_p[m, 2]
@@ -366,8 +366,8 @@ def unpack(F, I, H):
 
 
 @nb.njit(cache=True)
-def _scratch(model):
-    """Work arrays of `_pose_robot` for one model: (geometry poses, their centres, sphere centres,
+def robot_scratch(model):
+    """Work arrays of `pose_robot` for one model: (geometry poses, their centres, sphere centres,
     body poses, two 4x4 temporaries)."""
     G, S = model[2].shape[0], model[10].shape[0]
     return (np.empty((G, 4, 4)), np.empty((G, 3)), np.empty((S, 3)), np.empty((6, 4, 4)), np.empty((4, 4)),
@@ -375,7 +375,7 @@ def _scratch(model):
 
 
 @nb.njit(cache=True, inline="always")
-def _body_chain(qn, X_PF, axes, T, tmp):
+def body_chain(qn, X_PF, axes, T, tmp):
     """T[0..5] = the poses of ROBOT_BODIES at the state qn (8,): `_body_poses_into`'s
     arithmetic, written with scalar indexing (no sub-array views); tmp (4, 4) is scratch."""
     c, s = math.cos(qn[2]), math.sin(qn[2])
@@ -412,13 +412,13 @@ def _body_chain(qn, X_PF, axes, T, tmp):
 
 
 @nb.njit(cache=True, inline="always")
-def _pose_robot(qn, model, scratch):
+def pose_robot(qn, model, scratch):
     """Fills scratch with the robot's geometry poses (XG), their centres (gp) and the sphere
     centres (sw) at the state qn (8,): `_body_poses_into` and the geometry and sphere
     transforms, with the same arithmetic, written with scalar indexing (no sub-array views)."""
     X_PF, axes, g_body, g_X, s_geom, s_c = model[0], model[1], model[2], model[3], model[10], model[11]
     XG, gp, sw, T, tmp, rot = scratch
-    _body_chain(qn, X_PF, axes, T, tmp)
+    body_chain(qn, X_PF, axes, T, tmp)
     for g in range(g_body.shape[0]):
         a = g_body[g]
         for i in range(3):
@@ -435,7 +435,7 @@ def _pose_robot(qn, model, scratch):
 @nb.njit(cache=True, inline="always")
 def _pair_gap(a, c, gp, sw, g_vert, g_r, g_h, s0, rad, stop):
     """A bound of the distance between robot geometries a and c at the posed state
-    (`_pose_robot`'s gp, sw) in a model whose spheres have the radii `rad` (s_rho: balls that
+    (`pose_robot`'s gp, sw) in a model whose spheres have the radii `rad` (s_rho: balls that
     contain the geometry, so a lower bound; s_in: balls inside it, so an upper bound, negative
     when they overlap). Two vertical cylinders are exact (negative: the least overlap, in x-y
     or in z). Stops at the first sphere term below `stop`."""
@@ -480,25 +480,25 @@ def _pair_overlaps(gp, sw, g_vert, g_r, g_h, g_bound, s0, s_in, pairs, pair_pad)
 
 
 @nb.njit(cache=True)
-def _classify_one(qn, model, scratch) -> int:
+def classify_state(qn, model, scratch) -> int:
     """FREE, COLLIDING or UNKNOWN for one state qn (8,) (see `FreeCertificate.classify`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
     G, M, P = g_body.shape[0], e_p.shape[0], pairs.shape[0]
-    _pose_robot(qn, model, scratch)
+    pose_robot(qn, model, scratch)
     gp, sw = scratch[1], scratch[2]
     # a ball inside a robot geometry reaches into an environment box (padding >= 0)
     for g in range(G):
         if not g_pad[g] >= 0.0:
             continue
         for m in range(M):
-            if not e_exact[m] or _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) >= g_bound[g]:
+            if not e_exact[m] or point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) >= g_bound[g]:
                 continue
-            if g_vert[g] and e_zal[m] and _vertical_cylinder_box_overlap(
+            if g_vert[g] and e_zal[m] and vertical_cylinder_box_overlap(
                     gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m, EPS):
                 return COLLIDING
             for k in range(s0[g], s0[g + 1]):
-                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) < s_in[k] - EPS:
+                if point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) < s_in[k] - EPS:
                     return COLLIDING
     if _pair_overlaps(gp, sw, g_vert, g_r, g_h, g_bound, s0, s_in, pairs, pair_pad):
         return COLLIDING
@@ -507,15 +507,15 @@ def _classify_one(qn, model, scratch) -> int:
         if pad == -np.inf:
             continue
         for m in range(M):
-            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m)
+            d = point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m)
             if d > g_bound[g] + pad + EPS:
                 continue
             if g_vert[g] and e_zal[m]:
-                if _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m) <= pad + EPS:
+                if vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m) <= pad + EPS:
                     return UNKNOWN
                 continue
             for k in range(s0[g], s0[g + 1]):
-                if _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) <= s_rho[k] + pad + EPS:
+                if point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) <= s_rho[k] + pad + EPS:
                     return UNKNOWN
     for j in range(P):
         a, c = pairs[j, 0], pairs[j, 1]
@@ -529,7 +529,7 @@ def _classify_one(qn, model, scratch) -> int:
 
 
 @nb.njit(cache=True)
-def _geometry_reach(model):
+def geometry_reaches(model):
     """((G, 5), (G,)): for each robot geometry, how far joint k moves any point of it per
     radian (0 for the joints after its body: joint k turns body k + 1 and the bodies after it),
     and how far any point of it can be from the base's origin: the chain's link offsets (URDF
@@ -555,16 +555,16 @@ def _geometry_reach(model):
 
 
 @nb.njit(cache=True)
-def _reach(model):
+def model_reach(model):
     """Motion bounds of the robot's collision geometry (6,): [R_base, R_1, ..., R_5], where
     R_base bounds the distance of any point of any geometry from the base's origin (so from its
     vertical axis) and R_k the distance from arm joint k's origin (the origin of the body it
-    turns) of any point of a geometry it moves, at any state (`_geometry_reach`'s largest).
+    turns) of any point of a geometry it moves, at any state (`geometry_reaches`'s largest).
     Moving linearly in state space between two states moves no point of the robot more than
-    hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k|; `bulk._walk` uses the state's own
-    radius (`_free_margins`) in place of R_base, and `_arm_motion_bound` the sum over the
+    hypot(dx, dy) + R_base |dtheta| + sum_k R_k |dq_k|; `path_verdicts._walk` uses the state's own
+    radius (`free_margins`) in place of R_base, and `arm_motion_bound` the sum over the
     joints."""
-    GW, base = _geometry_reach(model)
+    GW, base = geometry_reaches(model)
     out = np.zeros(6)
     for g in range(GW.shape[0]):
         out[0] = max(out[0], base[g])
@@ -574,14 +574,14 @@ def _reach(model):
 
 
 @nb.njit(cache=True)
-def _pair_reach(model):
+def pair_reaches(model):
     """(P, 5): for each robot pair (geometries a, c on bodies b_a <= b_c), how far joint k can
     move a point of the pair's second geometry relative to the first per radian
-    (`_geometry_reach` of c) for the joints between the two bodies (b_a <= k < b_c), 0 for the
+    (`geometry_reaches` of c) for the joints between the two bodies (b_a <= k < b_c), 0 for the
     others, which move both alike. sum_k W[j, k] |dq_k| bounds the pair's relative motion
-    along a straight line in state space, and is at most `_arm_motion_bound`'s."""
+    along a straight line in state space, and is at most `arm_motion_bound`'s."""
     g_body, pairs = model[2], model[19]
-    GW = _geometry_reach(model)[0]
+    GW = geometry_reaches(model)[0]
     W = np.zeros((pairs.shape[0], 5))
     for j in range(pairs.shape[0]):
         a, c = pairs[j, 0], pairs[j, 1]
@@ -593,10 +593,10 @@ def _pair_reach(model):
 
 
 @nb.njit(cache=True, inline="always")
-def _arm_motion_bound(a, b, reach):
+def arm_motion_bound(a, b, reach):
     """An upper bound of how far any point of the robot moves relative to any other between the
     states a and b, along the straight line between them in state space (the base's motion
-    moves them all alike): sum_k R_k |dq_k| (`_reach`)."""
+    moves them all alike): sum_k R_k |dq_k| (`model_reach`)."""
     m = 0.0
     for k in range(5):
         m += reach[1 + k] * abs(b[3 + k] - a[3 + k])
@@ -605,20 +605,20 @@ def _arm_motion_bound(a, b, reach):
 
 @nb.njit(cache=True)
 def margin_size(model) -> int:
-    """The length of a state's margins as `bulk._walk` keeps them: m_env, m_self, radius
-    (`_free_margins`), then the P pairs' clearances, the G geometries' clearances and their
+    """The length of a state's margins as `path_verdicts._walk` keeps them: m_env, m_self, radius
+    (`free_margins`), then the P pairs' clearances, the G geometries' clearances and their
     radii."""
     return 3 + model[19].shape[0] + 2 * model[2].shape[0]
 
 
 @nb.njit(cache=True)
-def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
+def free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
     """(m_env, m_self, radius): how far, at least, every point of the robot could move at the
-    state qn (8,), and every point relative to every other (`_arm_motion_bound`), with
-    the state still FREE by `_classify_one`'s tests, the same tests with the same thresholds:
+    state qn (8,), and every point relative to every other (`arm_motion_bound`), with
+    the state still FREE by `classify_state`'s tests, the same tests with the same thresholds:
     the least clearance beyond its padding (and EPS) of every robot geometry to every
     environment box, and of every robot pair Drake checks. Both > 0 prove the state FREE;
-    otherwise it says nothing (ask `_classify_one`). Bounding spheres first: a finer test
+    otherwise it says nothing (ask `classify_state`). Bounding spheres first: a finer test
     runs only when a bound is not positive. The vertical cylinders keep their height
     (`FreeCertificate`), so a vertical gap to a box turned only about z never shrinks.
     radius: the largest horizontal distance of a point of the robot from the base's vertical
@@ -626,12 +626,12 @@ def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
     Where both margins are > 0 it also fills each robot pair's own clearance in pair_c (P,),
     each geometry's clearance to the environment in geo_c (G,) and its radius in geo_r (G,)
     (m_env and m_self are their least, radius their largest): pair j stays clear while the
-    motion of its second geometry relative to its first stays below pair_c[j] (`_pair_reach`),
-    geometry g while its own motion stays below geo_c[g] (`_geometry_reach`)."""
+    motion of its second geometry relative to its first stays below pair_c[j] (`pair_reaches`),
+    geometry g while its own motion stays below geo_c[g] (`geometry_reaches`)."""
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
     G, M, P = g_body.shape[0], e_p.shape[0], pairs.shape[0]
-    _pose_robot(qn, model, scratch)
+    pose_robot(qn, model, scratch)
     gp, sw = scratch[1], scratch[2]
     best = np.inf
     for g in range(G):
@@ -658,13 +658,13 @@ def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
                 c = gxy - math.sqrt(thr * thr - gz * gz) if thr > 0.0 else gxy
                 geo_c[g] = min(geo_c[g], c)
                 continue
-            c = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g] - pad - EPS
+            c = point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g] - pad - EPS
             if c >= geo_c[g]:
                 continue
             if c <= 0.0:  # classify's finer tests
                 c = np.inf
                 for k in range(s0[g], s0[g + 1]):
-                    c = min(c, _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) - s_rho[k] - pad - EPS)
+                    c = min(c, point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) - s_rho[k] - pad - EPS)
                 if c <= 0.0:
                     return c, c, 0.0
             geo_c[g] = min(geo_c[g], c)
@@ -693,9 +693,9 @@ def _free_margins(qn, model, scratch, pair_c, geo_c, geo_r):
 @nb.njit(cache=True)
 def _certify(q, F, I, H, out):
     model = unpack(F, I, H)
-    scratch = _scratch(model)
+    scratch = robot_scratch(model)
     for n in range(q.shape[0]):
-        out[n] = _classify_one(q[n], model, scratch)
+        out[n] = classify_state(q[n], model, scratch)
 
 
 @nb.njit(cache=True)
@@ -710,11 +710,11 @@ def _part_clearances(q, F, I, H, c, r):
     model = unpack(F, I, H)
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
-    scratch = _scratch(model)
+    scratch = robot_scratch(model)
     G, M = g_body.shape[0], e_p.shape[0]
     for n in range(q.shape[0]):
         qn = q[n]
-        _pose_robot(qn, model, scratch)
+        pose_robot(qn, model, scratch)
         gp, sw = scratch[1], scratch[2]
         j = 0
         for g in range(G):
@@ -725,9 +725,9 @@ def _part_clearances(q, F, I, H, c, r):
                 if pad != -np.inf:
                     for m in range(M):
                         if e_zal[m]:
-                            d = _vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m)
+                            d = vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m)
                         else:
-                            d = _point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g]
+                            d = point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g]
                         c[n, j] = min(c[n, j], d - pad - EPS)
                 j += 1
                 continue
@@ -736,6 +736,6 @@ def _part_clearances(q, F, I, H, c, r):
                 r[n, j] = math.hypot(sw[k, 0] - qn[0], sw[k, 1] - qn[1]) + s_rho[k]
                 if pad != -np.inf:
                     for m in range(M):
-                        c[n, j] = min(c[n, j], _point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m)
+                        c[n, j] = min(c[n, j], point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m)
                                       - s_rho[k] - pad - EPS)
                 j += 1

@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Scenario
+from ..config import Scenario
+from ..files import write_atomic
+from ..mapping.occupancy import write_ply
+from ..systems.mission_recorder import IterationLog
 from .diagram import build_mission_diagram
-from .files import write_atomic
-from .mapping.occupancy import write_ply
-from .systems.mission_recorder import IterationLog
 
 
 def _print_iteration(rec: dict):
@@ -39,7 +39,7 @@ def _write_json(path: Path, obj):
 def pose_errors(records: list[dict]) -> dict:
     """Mean planar position (m) and heading (rad) error at the scans after the first, of the
     dead-reckoned belief and of the registration-corrected belief against the true state."""
-    from .pose import state_error
+    from ..world.pose import state_error
     rows = [r for r in records[1:] if r.get("believed_state") and r.get("corrected_state")]
     if not rows:
         return {"scans": 0}
@@ -83,7 +83,7 @@ def prediction_summary(records: list[dict]) -> dict:
     prediction_slope, prediction_pairs; NaN written as null) and the scans that returned
     fewer than evaluation.BLIND_SCAN_POINTS object points (blind_scans: how many;
     blind_scan_list: which)."""
-    from .evaluation import BLIND_SCAN_POINTS, prediction_fit
+    from ..perception.evaluation import BLIND_SCAN_POINTS, prediction_fit
     fit = prediction_fit(records)
     clean = lambda v: None if v != v else round(v, 6)  # noqa: E731 - NaN -> null
     blind = [r["iteration"] for r in records if r["scan"].get("object_points", BLIND_SCAN_POINTS) < BLIND_SCAN_POINTS]
@@ -145,7 +145,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     t_rec = time.perf_counter()
     fusion = md.systems["surface_fusion"]
     mesh_V, mesh_T = fusion.GetOutputPort("mesh").Eval(fusion.GetMyContextFromRoot(ctx))
-    from .reconstruction import mesh_metrics, point_metrics, write_mesh_ply
+    from ..perception.reconstruction import mesh_metrics, point_metrics, write_mesh_ply
     write_mesh_ply(out / "model_mesh.ply", mesh_V, mesh_T)
     gt_V, gt_T, vox = md.mesh.vertices, md.mesh.triangles, sc.mapper.voxel_size
     reconstruction = {
@@ -156,13 +156,13 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     t_rec = time.perf_counter() - t_rec
     ceiling = None
     if sc.mission.coverage_ceiling:
-        from .planning.oracle import coverage_ceiling
+        from ..planning.oracle import coverage_ceiling
         ceiling = coverage_ceiling(sc, md.kin, md.mesh, str(out / "scene" / "object.obj"))
     omap.save_npz(out / "map.npz")
-    from .mapping.octomap_io import write_bt
+    from ..mapping.octomap_io import write_bt
     write_bt(omap, out / "map.bt")
     records = log.records
-    from .plots import plot_coverage
+    from ..outputs.plots import plot_coverage
     plot_coverage(records, out / "coverage.png", title=f"{sc.name} (seed {sc.seed})")
 
     collided, executed = int(counts[0]), int(counts[1])
@@ -232,7 +232,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
     }
     _write_json(out / "summary.json", summary)
     # paths.png and replay.html after summary.json: a failure there cannot lose the results
-    from .visual_outputs import write_visual_outputs
+    from ..outputs.visual_outputs import write_visual_outputs
     vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
                                verbose=verbose, collision=collision, model_mesh=(mesh_V, mesh_T))
     summary["times_s"]["visual_outputs"] = vis["seconds"]

@@ -31,8 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import write_atomic
-from .mapping.occupancy import OccupancyMap
+from ..files import write_atomic
+from ..mapping.occupancy import OccupancyMap
 from .meshcat_draw import (
     COLLISION_RGBA,
     CORRECT_RGBA,
@@ -83,8 +83,8 @@ def _robot_visualizer(sc, meshcat, obj_mesh_path):
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
     from pydrake.systems.framework import DiagramBuilder
 
-    from .robot import add_robot, state_to_positions_index
-    from .scene import add_environment
+    from ..world.robot import add_robot, state_to_positions_index
+    from ..world.scene import add_environment
 
     builder = DiagramBuilder()
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
@@ -110,7 +110,7 @@ def write_replay_html(out_path, sc, records: list[dict], maps: list[OccupancyMap
     in green from the last scan on. Returns sizes and times."""
     from pydrake.geometry import Meshcat, MeshcatAnimation, MeshcatParams
 
-    from .robot import RobotKinematics
+    from ..world.robot import RobotKinematics
 
     t0 = time.perf_counter()
     own = meshcat is None

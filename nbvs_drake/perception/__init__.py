@@ -1,0 +1,1 @@
+"""Perception: registration, scanning, the reconstruction and its evaluation."""

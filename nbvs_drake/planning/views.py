@@ -306,10 +306,7 @@ def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
     map's points carry no normals (a map saved before they were kept).
 
     One density per voxel (sample_density) counts a voxel as covered when any side of its
-    surface is: on the dragon (seed 1) 65-73 % of the ground truth not yet within 3 mm lay in
-    occupied voxels, 2-3 times the share that voxel density predicted uncovered there, and
-    the view the coverage gain ranked first added about half of what the best candidate did
-    (docs/decisions.md)."""
+    surface is, which misjudges thin parts (docs/decisions.md measured it on the dragon)."""
     from scipy.spatial import cKDTree
     pts = np.asarray(omap.object_points, np.float64)
     nrm = np.asarray(omap.object_normals, np.float64)

@@ -25,7 +25,7 @@ def test_localisation_scans_once_per_finished_plan_and_predicts_the_belief(kin):
     sc = Scenario()
     sc.localisation.method = "none"
     q0 = np.array(sc.robot.start)
-    loc = Localisation(sc, kin, q0, 0.1)
+    loc = Localisation.for_scenario(sc, kin, q0, 0.1)
     sim = Simulator(loc)
     ctx = sim.get_mutable_context()
     pts = np.array([[0.0, 0.0, 0.6], [0.05, 0.0, 0.6], [np.nan, 0, 0], [np.inf, np.inf, np.inf]])

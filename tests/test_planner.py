@@ -209,7 +209,7 @@ def test_path_length_eq8():
 def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, first_scan_map):
     sc, omap = first_scan_map
     q0 = np.array(sc.robot.start)
-    sys_ = NBVSPlanner(sc, planner, q0)
+    sys_ = NBVSPlanner.for_scenario(sc, planner, q0)
     sim = Simulator(sys_)
     ctx = sim.get_mutable_context()
     port = sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
@@ -235,7 +235,7 @@ def test_planner_system_plans_after_a_scan_and_stops_at_the_budget(planner, firs
 
 def _planner_system_after(sc, planner, omap, belief: Belief):
     q0 = np.array(sc.robot.start)
-    sys_ = NBVSPlanner(sc, planner, q0)
+    sys_ = NBVSPlanner.for_scenario(sc, planner, q0)
     ctx = sys_.CreateDefaultContext()
     sys_.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
     sys_.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(belief))

@@ -42,7 +42,7 @@ def test_a_frame_that_cannot_be_registered_triggers_relocalisation_then_the_next
     m1 = mapper.GetOutputPort("map").Eval(mctx)
     # plan 1 is a view plan: its target is its planned end state
     tau_port.FixValue(ctx, AbstractValue.Make(ControlSequence(1, 0.1, U, states, "view", states[-1])))
-    far = P2[~region_mask(sc, P2, RegistrationConfig())][:500]  # nothing of the table or object
+    far = P2[~region_mask(sc.scene, P2, RegistrationConfig())][:500]  # nothing of the table or object
     pc.GetMutableData().set_value(_cloud(far))
     status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
     sim.AdvanceTo(0.25)
@@ -151,7 +151,7 @@ def test_known_solids_block_the_segments_the_see_through_check_flags():
     cluttered room, only where asked; a chair's back hides the table from behind it, and a
     camera above the back sees over it."""
     sc = load_scenario("cluttered_room")
-    solids = KnownSolids.of(sc)
+    solids = KnownSolids.of(sc.scene)
     rng = np.random.default_rng(0)
     O = rng.uniform([-2.2, -2.2, 0.2], [2.2, 2.2, 1.2], (40, 3))
     P = rng.uniform([-1.6, -1.6, 0.0], [1.6, 1.6, 1.0], (300, 3))
@@ -189,7 +189,7 @@ def test_landmark_occlusion_picks_a_relocalisation_view_that_sees_the_table(tmp_
     assert seen[ia] < 0.1 < seen[ib] and blind[ia] > 0.5
     r = ScanRenderer(sc, tmp_path)
     cfg = RegistrationConfig()
-    n = [int(region_mask(sc, r.scan(cand[i]).points, cfg).sum()) for i in (ia, ib)]
+    n = [int(region_mask(sc.scene, r.scan(cand[i]).points, cfg).sum()) for i in (ia, ib)]
     print("region points: blind pick", n[0], "occlusion-aware pick", n[1])
     assert n[1] > 3 * n[0]
 
@@ -228,7 +228,7 @@ def test_the_planner_answers_a_localisation_frame(kin, first_scan_map, check):
     sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true"])
     q0 = np.array(sc.robot.start, float)
     impl = make_planner(sc, kin)
-    sysm = NBVSPlanner(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
+    sysm = NBVSPlanner.for_scenario(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
     from pydrake.systems.analysis import Simulator
     sim = Simulator(sysm)
     ctx = sim.get_mutable_context()
@@ -311,7 +311,7 @@ def test_the_planner_sends_the_robot_on_to_the_next_legs_end(kin, first_scan_map
     leg_end = q0.copy()
     leg_end[:3] = [-1.4, -0.5, 0.0]
     for legs, purpose in (((leg_end,), "leg"), ((), "view")):
-        sysm = NBVSPlanner(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
+        sysm = NBVSPlanner.for_scenario(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
         sim = Simulator(sysm)
         ctx = sim.get_mutable_context()
         mem = PlannerMemory(ControlSequence(4, 0.1, np.zeros((0, 7)), q0[None], "leg", target), omap.scan_count,
@@ -328,23 +328,26 @@ def test_the_planner_sends_the_robot_on_to_the_next_legs_end(kin, first_scan_map
 
 
 def test_with_leg_turns_a_leg_also_ends_after_a_long_turn_that_a_drive_follows():
-    """mission.leg_turns: Table 4's heading noise is per control step (sigma_w dt), so a leg
-    ends after a turn of at least motion.min_leg_turn steps that a drive follows; a shorter
-    turn stays in its leg."""
+    """legs.after_turns: Table 4's heading noise is per control step (sigma_w dt), so a leg
+    ends after a turn of at least LegRule.min_turn_steps steps that a drive follows; a
+    shorter turn stays in its leg."""
     from nbvs_drake.config import RobotConfig
-    from nbvs_drake.world.motion import leg_ends, min_leg_turn, plan_legs, rollout, steer
+    from nbvs_drake.world.motion import LegRule, leg_ends, rollout, steer
+
+    def rule(sc):
+        return LegRule.of(sc.localisation.verified_views, sc.noise, sc.robot.control_dt)
     rc = RobotConfig()
     sc = load_scenario("cluttered_room", settings=["mission.verify_views=true", "mission.legs=true",
                                                     "mission.leg_turns=true"])
-    n = min_leg_turn(sc)
+    n = rule(sc).min_turn_steps
     step = sc.noise.sigma_w * sc.robot.control_dt  # 0.028 rad
     # the smallest turn whose spread is more than twice what a frame and one corrective step leave
     assert step * np.sqrt(n) > 2 * np.hypot(0.01, step) >= step * np.sqrt(n - 1)
-    assert min_leg_turn(load_scenario("cluttered_room")) == 0
+    assert rule(load_scenario("cluttered_room")).min_turn_steps == 0
     q0 = np.array([-1.3, 0, 0, 0, 0.3, -0.3, -0.2, 0])
     q1 = np.array([0.9, 1.0, 2.0, 0.5, 0.3, -0.3, -0.2, 0])
     c = steer(q0, q1, rc)[0][1]
-    ends = plan_legs(sc, c)
+    ends = rule(sc).ends(c)
     assert len(ends) == 3 and ends[1:] == leg_ends(c)
     # the first leg is the turn alone: the base stands where it started, facing the drive
     s = rollout(q0, c, rc.control_dt)
@@ -354,7 +357,7 @@ def test_with_leg_turns_a_leg_also_ends_after_a_long_turn_that_a_drive_follows()
     # a turn shorter than n steps before the drive: no leg end there
     short = c[ends[0] - n + 1:]
     assert leg_ends(short, n, after_drives=False) == [len(short)]
-    assert plan_legs(load_scenario("cluttered_room"), c) == [len(c)]  # no legs without verify_views
+    assert rule(load_scenario("cluttered_room")).ends(c) == [len(c)]  # no legs without verified views
 
 
 def test_with_leg_turns_each_leg_has_its_own_recovery_budget():
@@ -379,7 +382,7 @@ def test_with_leg_turns_a_replanned_leg_turns_first_then_drives(kin, first_scan_
                                                   "mission.leg_turns=true"])
     q0 = np.array(sc.robot.start, float)
     impl = make_planner(sc, kin)
-    sysm = NBVSPlanner(sc, impl, q0)
+    sysm = NBVSPlanner.for_scenario(sc, impl, q0)
     q_end = q0.copy()
     q_end[:3] = [-1.45, -0.9, -np.pi / 2]
     later = (q0.copy(),)

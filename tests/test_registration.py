@@ -102,8 +102,8 @@ def _register_draws(sc, r, s1, model, with_view: bool, draws=range(12)):
     for draw in draws:
         q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, draw, 0.3 + 0.05 * draw)
         C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng(draw))
-        view = ScanView(Xb[:3, 3], P2, KnownSolids.of(sc)) if with_view else None
-        res = register_scan(P2[region_mask(sc, P2, cfg)], model, C, cfg,
+        view = ScanView(Xb[:3, 3], P2, KnownSolids.of(sc.scene)) if with_view else None
+        res = register_scan(P2[region_mask(sc.scene, P2, cfg)], model, C, cfg,
                             free_at=lambda X: omap.free_hits(X, sc.mapper.table_clearance), view=view)
         qc = res.correction.apply_state(qb)
         wrong += res.applied and state_error(qt, qc)[1] > state_error(qt, qb)[1] + 0.05
@@ -120,7 +120,7 @@ def test_icp_against_the_known_table_removes_the_heading_error(renderer):
     0.044 m; the one draw left (0.56 rad off) sees too little of the table to register."""
     sc, r, s1 = renderer
     cfg = RegistrationConfig()
-    model = environment_model(sc, cfg).merged(s1.points[region_mask(sc, s1.points, cfg)], cfg)
+    model = environment_model(sc.scene, cfg).merged(s1.points[region_mask(sc.scene, s1.points, cfg)], cfg)
     before, after, wrong = _register_draws(sc, r, s1, model, True)
     print("mean errors [base m, heading rad, camera m] before", before.mean(0), "after", after.mean(0))
     assert after.mean(0)[1] < 0.3 * before.mean(0)[1], (before.mean(0), after.mean(0))
@@ -137,7 +137,7 @@ def test_icp_against_the_scans_alone_is_weaker(renderer):
     0.221 -> 0.182 rad."""
     sc, r, s1 = renderer
     cfg = RegistrationConfig()
-    model = RegistrationModel().merged(s1.points[region_mask(sc, s1.points, cfg)], cfg)
+    model = RegistrationModel().merged(s1.points[region_mask(sc.scene, s1.points, cfg)], cfg)
     before, after, _ = _register_draws(sc, r, s1, model, False)
     print("mean errors [base m, heading rad, camera m] before", before.mean(0), "after", after.mean(0))
     assert 0.5 * before.mean(0)[1] < after.mean(0)[1] < before.mean(0)[1]
@@ -147,7 +147,7 @@ def test_see_through_check(renderer):
     """A return behind the table top (seen through it) is flagged; one on it or beside it is
     not."""
     sc, r, s1 = renderer
-    solids = KnownSolids.of(sc)
+    solids = KnownSolids.of(sc.scene)
     o = np.array([-1.0, 0.0, 1.0])
     h = sc.scene.table_height
     P = np.array([[0.0, 0.0, h - 0.2],  # under the table top, behind it from o
@@ -160,7 +160,7 @@ def test_see_through_check(renderer):
 def test_environment_model_has_the_table_edges_with_normals():
     sc = load_scenario()
     cfg = RegistrationConfig()
-    m = environment_model(sc, cfg)
+    m = environment_model(sc.scene, cfg)
     assert len(m.points) > 1000 and np.all(np.linalg.norm(m.normals, axis=1) > 0.99)
     side = np.isclose(m.points[:, 0], sc.scene.table_size[0] / 2, atol=1e-6)
     assert side.any() and np.allclose(m.normals[side & (m.points[:, 2] < sc.scene.table_height - 0.01)],
@@ -177,7 +177,7 @@ def _localisation_and_mapper(sc, kin, q0):
 
     from nbvs_drake.systems.localisation import Localisation
     b = DiagramBuilder()
-    loc = b.AddNamedSystem("localisation", Localisation(sc, kin, q0, 0.1))
+    loc = b.AddNamedSystem("localisation", Localisation.for_scenario(sc, kin, q0, 0.1))
     mapper = b.AddNamedSystem("octree_mapper", OctreeMapper(sc, 0.1))
     b.Connect(loc.GetOutputPort("registered_scan"), mapper.GetInputPort("registered_scan"))
     b.Connect(mapper.GetOutputPort("map"), loc.GetInputPort("map"))
@@ -220,7 +220,7 @@ def second_scan_in_view(sc, r):
     for draw in range(20):
         q0, U, states, qt, qb, P2, Xb = _noisy_second_scan(sc, r, draw, 0.4)
         above = P2[:, 2] > sc.scene.table_height + 0.02
-        if np.count_nonzero(above & region_mask(sc, P2, RegistrationConfig())) > 2000:
+        if np.count_nonzero(above & region_mask(sc.scene, P2, RegistrationConfig())) > 2000:
             break
     return q0, U, states, qt, qb, P2, Xb
 
@@ -243,10 +243,11 @@ def test_localisation_registers_the_scan_and_corrects_the_belief(renderer):
     # the result is the registration's (same prior draw: seed, 13, scan 2)
     cfg = RegistrationConfig()
     C = motion_prior(q0, U, 0.1, qb, sc.noise, np.random.default_rng([sc.seed, 13, 2]))
-    res = register_scan(P2[region_mask(sc, P2, cfg)],
-                        environment_model(sc, cfg).merged(s1.points[region_mask(sc, s1.points, cfg)], cfg), C, cfg,
+    res = register_scan(P2[region_mask(sc.scene, P2, cfg)],
+                        environment_model(sc.scene, cfg).merged(s1.points[region_mask(sc.scene, s1.points, cfg)], cfg),
+                        C, cfg,
                         free_at=lambda X: m1.free_hits(X, sc.mapper.table_clearance),
-                        view=ScanView(Xb[:3, 3], P2, KnownSolids.of(sc)))
+                        view=ScanView(Xb[:3, 3], P2, KnownSolids.of(sc.scene)))
     np.testing.assert_allclose(belief.state, res.correction.apply_state(qb), atol=1e-12)
     assert state_error(qt, belief.state) < state_error(qt, qb)  # closer to the truth
     # the scan went into the map at the corrected camera pose
@@ -262,7 +263,7 @@ def test_localisation_holds_back_a_scan_it_cannot_register(renderer):
     loc, mapper, sim, ctx, pc, status = _first_scan_then_plan(sc, r, q0, U, states, s1.points)
     mctx, lctx = mapper.GetMyContextFromRoot(ctx), loc.GetMyContextFromRoot(ctx)
     m1 = mapper.GetOutputPort("map").Eval(mctx)
-    far = P2[~region_mask(sc, P2, RegistrationConfig())][:500]  # nothing of the table or object
+    far = P2[~region_mask(sc.scene, P2, RegistrationConfig())][:500]  # nothing of the table or object
     pc.GetMutableData().set_value(_cloud(far))
     status.GetMutableData().set_value(np.array([1.0, len(U), 1.0]))
     sim.AdvanceTo(0.25)

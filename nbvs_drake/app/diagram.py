@@ -96,13 +96,13 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     camera = add_depth_camera(builder, scene_graph, plant, sc.sensor, sc.seed, dt)
     rgbd, to_pc = camera.rgbd, camera.to_pc
     belief_pose = builder.AddNamedSystem("believed_camera_pose", CameraPose(kin))
-    loc = builder.AddNamedSystem("localisation", Localisation(sc, kin, q0, dt))
+    loc = builder.AddNamedSystem("localisation", Localisation.for_scenario(sc, kin, q0, dt))
     mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
     recovery = None
     if sc.localisation.verified_views is not None:
         from ..planning import make_recovery
         recovery = make_recovery(sc, kin, planner_impl)
-    planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner(sc, planner_impl, q0, recovery))
+    planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner.for_scenario(sc, planner_impl, q0, recovery))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
     fusion = builder.AddNamedSystem("surface_fusion", SurfaceFusion(sc, dt))
 

@@ -41,7 +41,7 @@ def warm_kernels() -> float:
                                 kin.arm_upper,
                          *cert.model, 0.04, cm.counter, *grid.arrays, 1)
     from ..perception.registration import KnownSolids  # the landmarks' occlusion test
-    KnownSolids.of(sc).blocked(np.zeros((1, 3)), np.ones((1, 3)), np.ones((1, 1), bool))
+    KnownSolids.of(sc.scene).blocked(np.zeros((1, 3)), np.ones((1, 3)), np.ones((1, 1), bool))
     return time.perf_counter() - t
 
 

@@ -16,7 +16,7 @@ from ..errors import ScenarioError
 
 #: the error a registered belief keeps (m, m, rad standard deviations in x, y, heading): the
 #: default spread verified views' rollouts start from, the prior of the re-registered scan
-#: after a correction, and the floor of motion.min_leg_turn
+#: after a correction, and the floor of LegRule.min_turn_steps
 REGISTERED_SIGMA = (0.01, 0.01, 0.01)
 
 #: per-kind defaults of ObjectConfig.size and .up (when None)

@@ -63,13 +63,17 @@ class GridSpec:
 
 
 def grid_for_scenario(sc: Scenario) -> GridSpec:
+    return grid_for(sc.scene, sc.mapper)
+
+
+def grid_for(scene, m) -> GridSpec:
     """W_box grown by the margin on the sides and the top (the table bounds it below), on the
     voxel lattice of OctoMap: voxel boundaries at integer multiples of the voxel size, so
-    that voxel (i, j, k) is OctoMap's key (i, j, k) + key_offset (see `octomap_key_offset`)."""
-    m = sc.mapper
+    that voxel (i, j, k) is OctoMap's key (i, j, k) + key_offset (see `octomap_key_offset`);
+    `scene` and `m` are the scene and mapper sections."""
     res = float(m.voxel_size)
-    lo = np.array(sc.scene.bbox_min, float) - np.array([m.margin, m.margin, 0.0])
-    hi = np.array(sc.scene.bbox_max, float) + m.margin
+    lo = np.array(scene.bbox_min, float) - np.array([m.margin, m.margin, 0.0])
+    hi = np.array(scene.bbox_max, float) + m.margin
     i_lo = np.floor(lo / res + 1e-9).astype(int)
     i_hi = np.ceil(hi / res - 1e-9).astype(int)
     return GridSpec(i_lo * res, res, tuple(int(x) for x in (i_hi - i_lo)))
@@ -115,8 +119,13 @@ class OccupancyMap:
 
     @staticmethod
     def for_scenario(sc: Scenario) -> "OccupancyMap":
-        return OccupancyMap(grid_for_scenario(sc), SensorModel.from_config(sc.mapper),
-                            wbox_min=sc.scene.bbox_min, wbox_max=sc.scene.bbox_max)
+        return OccupancyMap.for_scene(sc.scene, sc.mapper)
+
+    @staticmethod
+    def for_scene(scene, mapper) -> "OccupancyMap":
+        """The empty map of W_box (the scene section) with the mapper section's settings."""
+        return OccupancyMap(grid_for(scene, mapper), SensorModel.from_config(mapper),
+                            wbox_min=scene.bbox_min, wbox_max=scene.bbox_max)
 
     # ---- classes -------------------------------------------------------------------
     def classes(self) -> np.ndarray:

@@ -710,11 +710,11 @@ def frustum_planes(dirs_cam: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(planes / np.linalg.norm(planes, axis=1, keepdims=True))
 
 
-def known_occluders(sc) -> np.ndarray:
+def known_occluders(scene) -> np.ndarray:
     """The known environment's boxes but the floor (the table, its legs, the chairs) as
     `evaluate_views`' occluders (M, 8)."""
     from ..world.scene import box_arrays
-    centers, half, yaw = box_arrays(sc, floor=False)
+    centers, half, yaw = box_arrays(scene, floor=False)
     return np.ascontiguousarray(np.c_[centers, half, np.cos(yaw), np.sin(yaw)])
 
 

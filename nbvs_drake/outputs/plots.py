@@ -78,11 +78,10 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
         return text
 
     # the rest of the known environment (cluttered_room's chairs), as footprints
-    from ..config import Scenario
     from ..world.pose import rot_z
     from ..world.scene import environment_boxes
     obstacles = []
-    for b in environment_boxes(Scenario(scene=scene_cfg)):
+    for b in environment_boxes(scene_cfg):
         if b.name == "floor" or b.name.startswith("table"):
             continue
         local = 0.5 * np.array(b.size[:2]) * np.array([(-1, -1), (1, -1), (1, 1), (-1, 1)])

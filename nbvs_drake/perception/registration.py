@@ -26,7 +26,7 @@ import dataclasses as dc
 import numba
 import numpy as np
 
-from ..config import Scenario
+from ..config import LocalisationConfig, SceneConfig
 from ..world.motion import rollout, sample_control_noise, wrap_angle
 from ..world.pose import Correction, rot_z
 
@@ -64,16 +64,16 @@ FINE_STAGE = (0.01, 0.008)
 FINE_SIGMA = 0.002
 
 
-def registration_config(sc: Scenario) -> RegistrationConfig:
-    """The registration's settings for a scenario's mission (residual cap, fine stage)."""
-    cfg = RegistrationConfig(residual_cap=sc.localisation.cap())
-    if sc.localisation.fine_stage:
+def registration_config(loc: LocalisationConfig) -> RegistrationConfig:
+    """The registration's settings of the localisation section (residual cap, fine stage)."""
+    cfg = RegistrationConfig(residual_cap=loc.cap())
+    if loc.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
     return cfg
 
 
-def region_mask(sc: Scenario, P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
-    s = sc.scene
+def region_mask(scene: SceneConfig, P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    s = scene
     lo = np.array([s.bbox_min[0] - cfg.region_margin_xy, s.bbox_min[1] - cfg.region_margin_xy,
                    s.table_height - cfg.region_below_table])
     hi = np.array([s.bbox_max[0] + cfg.region_margin_xy, s.bbox_max[1] + cfg.region_margin_xy, s.bbox_max[2]])
@@ -127,7 +127,7 @@ def box_surface_points(center, size, yaw: float, spacing: float) -> tuple[np.nda
     return np.concatenate(pts) @ R.T + c, np.concatenate(nrm) @ R.T
 
 
-def environment_model(sc: Scenario, cfg: RegistrationConfig) -> RegistrationModel:
+def environment_model(scene: SceneConfig, cfg: RegistrationConfig) -> RegistrationModel:
     """The known environment (the table top, its legs, chairs) as points on its surfaces,
     with their exact normals, inside the registration region: the model every scan is
     registered against before any scan is merged. The robot knows this environment (the
@@ -135,11 +135,11 @@ def environment_model(sc: Scenario, cfg: RegistrationConfig) -> RegistrationMode
     alone cannot (a body of revolution seen from one side)."""
     from ..world.scene import environment_boxes
     faces = [box_surface_points(b.center, b.size, b.yaw, cfg.model_voxel)
-             for b in environment_boxes(sc) if b.name != "floor"]
+             for b in environment_boxes(scene) if b.name != "floor"]
     if not faces:
         return RegistrationModel()
     P, N = np.concatenate([f[0] for f in faces]), np.concatenate([f[1] for f in faces])
-    keep = region_mask(sc, P, cfg)
+    keep = region_mask(scene, P, cfg)
     P, N = P[keep], N[keep]
     idx = voxel_downsample_index(P, cfg.model_voxel)
     return RegistrationModel(P[idx], N[idx])
@@ -153,9 +153,9 @@ class KnownSolids:
     yaw: np.ndarray  #: (M,)
 
     @staticmethod
-    def of(sc: Scenario) -> "KnownSolids":
+    def of(scene: SceneConfig) -> "KnownSolids":
         from ..world.scene import box_arrays
-        return KnownSolids(*box_arrays(sc))
+        return KnownSolids(*box_arrays(scene))
 
     def seen_through(self, origin: np.ndarray, P: np.ndarray, tol: float) -> np.ndarray:
         """Whether the ray from `origin` to each return runs more than `tol` through a solid:

@@ -63,7 +63,7 @@ class TruthScene:
         self.scene = o3d.t.geometry.RaycastingScene()
         self.object_id = self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
                                                   o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)))
-        for b in environment_boxes(sc):
+        for b in environment_boxes(sc.scene):
             V, T = _box_triangles(b.center, b.size, b.yaw)
             self.scene.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(T.astype(np.uint32)))
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, stride)

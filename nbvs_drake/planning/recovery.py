@@ -151,7 +151,7 @@ def landmark_solids(sc: Scenario):
     if vv is None or not vv.landmarks.occlusion:
         return None
     from ..perception.registration import KnownSolids
-    return KnownSolids.of(sc)
+    return KnownSolids.of(sc.scene)
 
 
 def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.random.Generator,
@@ -162,7 +162,7 @@ def registration_landmarks(sc: Scenario, object_points: np.ndarray, rng: np.rand
     that saw each point), (L, 6): each point with its surface normal (the environment's exact
     ones), for `landmarks_in_view`'s back-face test."""
     from ..perception.registration import RegistrationConfig, environment_model
-    model = environment_model(sc, RegistrationConfig())
+    model = environment_model(sc.scene, RegistrationConfig())
     env = model.points.astype(float)
     obj = np.asarray(object_points, float).reshape(-1, 3)
     if object_normals is not None:  # each point with its normal

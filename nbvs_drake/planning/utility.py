@@ -20,7 +20,7 @@ import numpy as np
 
 from ..config import Expected, Scenario
 from ..mapping.occupancy import OccupancyMap
-from ..world.motion import plan_legs, plans_in_legs
+from ..world.motion import LegRule
 from . import path_verdicts
 from .certificate import FREE, UNKNOWN
 from .expected_utility import expected_utility, sample_count_bound
@@ -57,6 +57,8 @@ class ExpectedUtilityScore:
         #: the rollouts' settings: the expected utility's, or its defaults where the scorer
         #: only checks paths (the recovery paths of a deterministic planner)
         self.u = p.utility if isinstance(p.utility, Expected) else Expected()
+        #: where each plan's legs end (their rollouts start from each leg's re-localised start)
+        self.legs = LegRule.of(sc.localisation.verified_views, sc.noise, sc.robot.control_dt)
         need = sample_count_bound(self.u.alpha, self.u.gamma)
         if self.u.samples < need:
             import warnings
@@ -111,10 +113,10 @@ class ExpectedUtilityScore:
 
     def uses_legs(self) -> bool:
         """mission.legs with verified views under motion noise: plans run in legs."""
-        return plans_in_legs(self.sc)
+        return self.legs.on
 
     def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
-        """Algorithm 1 for one candidate. With legs (`uses_legs`, motion.plan_legs) each leg's
+        """Algorithm 1 for one candidate. With legs (`uses_legs`, `LegRule`) each leg's
         rollouts start from its nominal start (the first from the belief and its spread, the
         others re-localised by the frame at the previous leg's end); the candidate is feasible
         when every leg is, and its value is the last leg's."""
@@ -124,7 +126,7 @@ class ExpectedUtilityScore:
         else:
             def final_utility(s):
                 return self.state_utility(omap, s, un_total, cand.factors["dist"], True)
-        ends = plan_legs(self.sc, cand.controls)
+        ends = self.legs.ends(cand.controls)
         start, checked, collided, eu = 0, 0, 0, None
         for j, end in enumerate(ends):
             last = j == len(ends) - 1

@@ -50,7 +50,7 @@ class ViewEvaluator:
         #: planner.coverage.facing_density: a ray on known surface gains over the density of the side it meets
         self.facing_density = bool(sc.planner.coverage.facing_density)
         #: planner.view_occluders(): the known environment's boxes that end the views' rays
-        self.occluders = K.known_occluders(sc) if sc.planner.view_occluders() else None
+        self.occluders = K.known_occluders(sc.scene) if sc.planner.view_occluders() else None
 
     def evaluate(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
         """Metrics (N, K.N_METRICS) of the states q (N, 8); see view_metrics.M_*."""

@@ -10,7 +10,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.perception import PointCloud
 from pydrake.systems.framework import BasicVector, LeafSystem, ValueProducer
 
-from ..config import Scenario, resolve_sensor
+from ..config import LocalisationConfig, MapperConfig, NoiseConfig, Scenario, SceneConfig, SensorConfig, resolve_sensor
 from ..mapping.occupancy import OccupancyMap
 from ..perception.registration import (
     KnownSolids,
@@ -115,24 +115,31 @@ class Localisation(LeafSystem):
     State: abstract (belief with its covariance, registration model, last scan).
     """
 
-    def __init__(self, sc: Scenario, kin: RobotKinematics, q0, dt: float):
+    @staticmethod
+    def for_scenario(sc: Scenario, kin: RobotKinematics, q0, dt: float) -> "Localisation":
+        """The localisation of a scenario: its own section, and the scene (the known
+        environment), sensor, mapper and noise sections it registers with."""
+        return Localisation(sc.localisation, sc.scene, sc.sensor, sc.mapper, sc.noise, kin, q0, dt, sc.seed)
+
+    def __init__(self, config: LocalisationConfig, scene: SceneConfig, sensor: SensorConfig, mapper: MapperConfig,
+                 noise: NoiseConfig, kin: RobotKinematics, q0, dt: float, seed: int):
         super().__init__()
-        self.sc = sc
-        self.reg_cfg = registration_config(sc)
-        vv = sc.localisation.verified_views
+        self.config, self.scene, self.mapper, self.noise, self.seed = config, scene, mapper, noise, seed
+        self.reg_cfg = registration_config(config)
+        vv = config.verified_views
         self._leg_turns = bool(vv is not None and vv.legs is not None and vv.legs.after_turns)
-        self._solids = KnownSolids.of(sc)
-        self._dirs = ray_directions(sc.sensor, 1)[0]
-        self._z_far = resolve_sensor(sc.sensor).z_far
+        self._solids = KnownSolids.of(scene)
+        self._dirs = ray_directions(sensor, 1)[0]
+        self._z_far = resolve_sensor(sensor).z_far
         q0 = np.asarray(q0, float)
-        model0 = environment_model(sc, self.reg_cfg) if sc.localisation.method == "icp" else RegistrationModel()
+        model0 = environment_model(scene, self.reg_cfg) if config.method == "icp" else RegistrationModel()
         mem = _Memory(Belief.exact(q0), 0, -1, model0, RegisteredScan())
         self._pc = self.DeclareAbstractInputPort("point_cloud", AbstractValue.Make(PointCloud()))
         from pydrake.systems.sensors import ImageDepth32F
         self._depth = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
         self._status = self.DeclareVectorInputPort("controller_status", ControllerStatus.SIZE)
         self._tau = self.DeclareAbstractInputPort("controls", AbstractValue.Make(ControlSequence.empty(q0, dt)))
-        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
+        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scene(scene, mapper)))
         self._mem = self.DeclareAbstractState(AbstractValue.Make(mem))
         self._kin = kin
         self._outcome = self.DeclareCacheEntry(
@@ -169,18 +176,18 @@ class Localisation(LeafSystem):
         pending = mem.belief.covariance
         tau: ControlSequence = self._tau.Eval(context)
         check = ""
-        if self.sc.localisation.method == "icp" and mem.belief.scan > 0:
-            prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.sc.noise,
-                                           np.random.default_rng([self.sc.seed, 13, k] + (
+        if self.config.method == "icp" and mem.belief.scan > 0:
+            prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.noise,
+                                           np.random.default_rng([self.seed, 13, k] + (
                                                [len(mem.frames)] if mem.frames else [])))
             refine = self._refines(tau, mem)
             if refine:  # the scan after a correction: registered again from the frame's pose
                 prior = prior + np.diag(np.square(REGISTERED_SIGMA))
             if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 omap: OccupancyMap = self._map.Eval(context)
-                icp = register_scan(pts[region_mask(self.sc, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,
+                icp = register_scan(pts[region_mask(self.scene, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,
                                     free_at=functools.partial(omap.free_hits,
-                                                              table_clearance=self.sc.mapper.table_clearance),
+                                                              table_clearance=self.mapper.table_clearance),
                                     view=ScanView(X_WC[:3, 3], pts, self._solids))
                 if icp.applied:
                     corr = icp.correction
@@ -188,14 +195,14 @@ class Localisation(LeafSystem):
                     pending = np.zeros((3, 3))
                 elif not refine:
                     pending = prior
-                    integrate = not self.sc.localisation.skip_unregistered_scans
+                    integrate = not self.config.skip_unregistered_scans
                 # (a refining registration that fails leaves the scan at the registered frame's pose)
                 check = self._verify(tau, icp, corr.apply_state(mem.belief.state),
                                      _recoveries(mem.frames, self._leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
         if integrate and (not check or icp.applied):
-            model = model.merged(pts[region_mask(self.sc, pts, self.reg_cfg)], self.reg_cfg)
+            model = model.merged(pts[region_mask(self.scene, pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
                      icp=icp.to_json() if icp is not None else None)
@@ -206,7 +213,7 @@ class Localisation(LeafSystem):
             return scan, belief, model, mem.frames + (frame,)
         info = dict(plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
                     icp=frame["icp"])
-        if self.sc.localisation.verified_views is not None:
+        if self.config.verified_views is not None:
             info["frames"] = list(mem.frames)
         scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info, X_WC)
         belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
@@ -214,14 +221,14 @@ class Localisation(LeafSystem):
 
     def _refines(self, tau: ControlSequence, mem) -> bool:
         """mission.refine_scan_registration: this scan ends a correction path of verified views."""
-        mi = self.sc.localisation.verified_views
+        mi = self.config.verified_views
         return bool(mi is not None and mi.refine_scan and tau.purpose == "correct" and mem.frames)
 
     def _verify(self, tau: ControlSequence, icp, corrected: np.ndarray, n_frames: int) -> str:
         """What a frame at the end of plan tau asks for under mission.verify_views: "" (it is
         the sensing scan), "relocalise" (not registered) or "correct" (registered, but the
         corrected camera is off tau's target view)."""
-        mi = self.sc.localisation.verified_views
+        mi = self.config.verified_views
         if mi is None or tau.purpose == "correct" or tau.target is None or \
                 (n_frames >= mi.max_recoveries and tau.purpose != "leg"):
             return ""

@@ -9,10 +9,10 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from ..config import Scenario
+from ..config import MissionConfig, Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..planning.interface import Planner, PlanRequest, PlanResult
-from ..world.motion import ControlSequence
+from ..world.motion import ControlSequence, LegRule
 from .messages import Belief, PlanReport, rounded_state
 
 
@@ -71,14 +71,23 @@ class NBVSPlanner(LeafSystem):
     State: abstract PlannerMemory.
     """
 
-    def __init__(self, sc: Scenario, planner: Planner, q0, recovery=None):
+    @staticmethod
+    def for_scenario(sc: Scenario, planner: Planner, q0, recovery=None) -> "NBVSPlanner":
+        """The planner system of a scenario: each of its parts gets its own section."""
+        legs = LegRule.of(sc.localisation.verified_views, sc.noise, sc.robot.control_dt)
+        return NBVSPlanner(sc.mission, legs, planner, q0, sc.robot.control_dt, sc.seed,
+                           OccupancyMap.for_scene(sc.scene, sc.mapper), recovery)
+
+    def __init__(self, mission: MissionConfig, legs: LegRule, planner: Planner, q0, dt: float, seed: int,
+                 empty_map: OccupancyMap, recovery=None):
+        """`mission`: the stop criteria; `legs`: where plans' legs end (verified views under
+        noise); `empty_map`: the map port's model value; `seed`: the plans' random draws."""
         super().__init__()
-        self.sc = sc
+        self.mission, self.legs, self.dt, self.seed = mission, legs, dt, seed
         self.planner = planner
         self.recovery = recovery
-        dt = sc.robot.control_dt
         mem = PlannerMemory(ControlSequence.empty(q0, dt))
-        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(OccupancyMap.for_scenario(sc)))
+        self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(empty_map))
         self._belief = self.DeclareAbstractInputPort("belief", AbstractValue.Make(Belief.exact(q0)))
         self._mem = self.DeclareAbstractState(AbstractValue.Make(mem))
         self.DeclareAbstractOutputPort("controls", lambda: AbstractValue.Make(mem.controls), self._calc_controls,
@@ -105,13 +114,13 @@ class NBVSPlanner(LeafSystem):
         belief: Belief = self._belief.Eval(context)
         base = PlanReport(scan=k, believed_state=rounded_state(belief.dead_reckoned),
                           corrected_state=rounded_state(belief.state))
-        mi = self.sc.mission
+        mi = self.mission
         if k >= mi.max_scans:
             new = PlannerMemory(mem.controls, k, dc.replace(base, status="stop", stop_reason="max_scans"))
         elif mi.stop_unknown_voxels and omap.unknown_count() < mi.stop_unknown_voxels:
             new = PlannerMemory(mem.controls, k, dc.replace(base, status="stop", stop_reason="unknown_below_threshold"))
         else:
-            rng = np.random.default_rng([self.sc.seed, 1, k])
+            rng = np.random.default_rng([self.seed, 1, k])
             t = time.perf_counter()
             cov = belief.covariance
             res: PlanResult = self.planner.plan(PlanRequest(omap, belief.state, rng, cov))
@@ -130,19 +139,17 @@ class NBVSPlanner(LeafSystem):
             else:
                 ends = self._legs(res.controls)
                 first = ends[0]
-                tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls[:first],
+                tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls[:first],
                                       res.states[:first + 1], "leg" if len(ends) > 1 else "view", res.states[-1])
                 rep = dc.replace(rep, plan_id=tau.plan_id, motion_sim_s=len(res.controls) * tau.dt)
                 new = PlannerMemory(tau, k, rep, belief.frame, res.states[-1], tuple(res.states[e] for e in ends[1:-1]))
         state.get_mutable_abstract_state(self._mem).set_value(new)
 
     def _legs(self, controls) -> list[int]:
-        """Where the plan's legs end (motion.plan_legs: mission.legs with verified views under
-        noise), else [m]."""
-        from ..world.motion import plan_legs
+        """Where the plan's legs end (`LegRule`: verified views' legs under noise), else [m]."""
         if self.recovery is None:
             return [len(controls)]
-        return plan_legs(self.sc, controls)
+        return self.legs.ends(controls)
 
     def _recover(self, mem: PlannerMemory, omap: OccupancyMap, belief: Belief) -> PlannerMemory:
         """The answer to a localisation frame: a correction back to the view being verified or
@@ -150,7 +157,7 @@ class NBVSPlanner(LeafSystem):
         without a path, the last plan stays (its frame is re-taken as the scan: the controller
         is idle, so the Localisation takes the next plan's end; here none comes, so the view is
         given up and the frame count reaches max_recoveries)."""
-        rng = np.random.default_rng([self.sc.seed, 17, belief.frame])
+        rng = np.random.default_rng([self.seed, 17, belief.frame])
         legs = mem.legs
         if belief.check == "relocalise":
             res = self.recovery.relocalise(omap, belief.state, belief.covariance, rng)
@@ -159,7 +166,7 @@ class NBVSPlanner(LeafSystem):
             if legs:  # on to the end of the next leg, from where the frame put the robot
                 res = self.recovery.leg(omap, belief.state, legs[0], belief.covariance)
                 legs = legs[1:]
-                if res.status == "ok":  # mission.leg_turns: a long turn back onto the line is a leg
+                if res.status == "ok":  # legs.after_turns: a long turn back onto the line is a leg
                     res, legs = self._first_leg(res, legs)
             if res is None or res.status != "ok":
                 legs = ()
@@ -170,16 +177,16 @@ class NBVSPlanner(LeafSystem):
             res.controls, res.states = np.zeros((0, 7)), np.asarray(belief.state, float)[None]
             res.factors = {"purpose": "stay"}
         purpose = res.factors.get("purpose", "view")
-        tau = ControlSequence(mem.controls.plan_id + 1, self.sc.robot.control_dt, res.controls, res.states,
+        tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls, res.states,
                               "relocalise" if purpose == "stay" else purpose, mem.target)
         return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target, legs)
 
     def _first_leg(self, res: PlanResult, legs: tuple) -> tuple[PlanResult, tuple]:
         """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of
-        its own (mission.leg_turns, motion.min_leg_turn): that turn, and the leg's end ahead
-        of `legs`."""
-        from ..world.motion import leg_ends, min_leg_turn
-        n = min_leg_turn(self.sc)
+        its own (legs.after_turns, `LegRule.min_turn_steps`): that turn, and the leg's end
+        ahead of `legs`."""
+        from ..world.motion import leg_ends
+        n = self.legs.min_turn_steps
         ends = leg_ends(res.controls, n, after_drives=False) if n else [len(res.controls)]
         if len(ends) == 1:
             return res, legs

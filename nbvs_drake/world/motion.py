@@ -134,17 +134,41 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
 
 
 
-def plans_in_legs(sc) -> bool:
-    """Whether plans run in legs: mission.legs with verified views under motion noise."""
-    vv = sc.localisation.verified_views
-    return bool(vv is not None and vv.legs is not None and np.any(noise_sigmas(sc.noise) > 0))
+@dc.dataclass(frozen=True)
+class LegRule:
+    """Where a plan's legs end (localisation.verified_views.legs): `on` when plans run in legs
+    (verified views with legs, under motion noise); `min_turn_steps` > 0 (legs.after_turns):
+    a leg also ends after a turn in place of at least that many steps that a drive follows."""
+    on: bool = False
+    min_turn_steps: int = 0
+
+    @staticmethod
+    def of(verified_views, noise: NoiseConfig, control_dt: float) -> "LegRule":
+        """The rule of the localisation section's verified views, the noise and the control period."""
+        vv = verified_views
+        legs = vv.legs if vv is not None else None
+        on = bool(legs is not None and np.any(noise_sigmas(noise) > 0))
+        steps = 0
+        step = noise.sigma_w * control_dt
+        if legs is not None and legs.after_turns and step > 0:
+            # the first turn whose heading spread, sigma_w dt sqrt(n), is more than twice what the
+            # frame leaves (the registration's heading error and one step of corrective turn)
+            floor = math.hypot(REGISTERED_SIGMA[2], step)
+            steps = int(math.floor((2.0 * floor / step) ** 2)) + 1
+        return LegRule(on, steps)
+
+    def ends(self, controls: np.ndarray) -> list[int]:
+        """Where a plan's legs end: `leg_ends` when plans run in legs, else [m]."""
+        if not self.on:
+            return [len(np.asarray(controls).reshape(-1, NU))]
+        return leg_ends(controls, self.min_turn_steps)
 
 
 def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True) -> list[int]:
-    """The legs of a plan (mission.legs): the end index (exclusive, into the controls) of
+    """The legs of a plan (verified views' legs): the end index (exclusive, into the controls) of
     each, one after every drive phase (v != 0) that more base motion follows, and the last
     at m. A plan with one drive, or none, is one leg unless a turn follows its drive.
-    min_turn_steps > 0 (mission.leg_turns): a leg also ends after every turn in place
+    min_turn_steps > 0 (legs.after_turns): a leg also ends after every turn in place
     (omega != 0, v = 0) of at least that many steps that a drive follows, so the frame there
     fixes the heading before the drive. after_drives=False: only those ends after turns."""
     c = np.asarray(controls, float).reshape(-1, NU)
@@ -163,25 +187,6 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
     return ends + [m]
 
 
-def min_leg_turn(sc) -> int:
-    """mission.leg_turns: the shortest turn (in control steps) after which a leg ends: the
-    first whose heading spread, sigma_w dt sqrt(n), is more than twice what the frame leaves
-    (the registration's heading error and one step of corrective turn); 0 without leg_turns."""
-    vv = sc.localisation.verified_views
-    if vv is None or vv.legs is None or not vv.legs.after_turns:
-        return 0
-    step = sc.noise.sigma_w * sc.robot.control_dt
-    if step <= 0:
-        return 0
-    floor = math.hypot(REGISTERED_SIGMA[2], step)
-    return int(math.floor((2.0 * floor / step) ** 2)) + 1
-
-
-def plan_legs(sc, controls: np.ndarray) -> list[int]:
-    """Where a plan's legs end: `leg_ends` when it runs in legs (`plans_in_legs`), else [m]."""
-    if not plans_in_legs(sc):
-        return [len(np.asarray(controls).reshape(-1, NU))]
-    return leg_ends(controls, min_leg_turn(sc))
 
 
 # --------------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ..config import Scenario
+from ..config import Scenario, SceneConfig
 
 TABLE_THICKNESS = 0.04
 LEG = 0.04
@@ -24,9 +24,9 @@ class Box:
     color: tuple[float, float, float, float] = (0.55, 0.4, 0.25, 1.0)
 
 
-def environment_boxes(sc: Scenario) -> list[Box]:
+def environment_boxes(scene: SceneConfig) -> list[Box]:
     """Floor, table top and legs, and (clutter = chairs) nine chairs around the table."""
-    s = sc.scene
+    s = scene
     tx, ty = s.table_size
     h = s.table_height
     boxes = [Box("floor", (0.0, 0.0, -0.05), (8.0, 8.0, 0.1), color=(0.8, 0.8, 0.8, 1.0)),
@@ -36,20 +36,20 @@ def environment_boxes(sc: Scenario) -> list[Box]:
         boxes.append(Box(f"table_leg{i}", (sx * (tx / 2 - LEG), sy * (ty / 2 - LEG), leg_h / 2),
                          (LEG, LEG, leg_h)))
     if s.clutter == "chairs":
-        boxes += chair_boxes(sc)
+        boxes += chair_boxes(scene)
     return boxes
 
 
-def box_arrays(sc: Scenario, floor: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def box_arrays(scene: SceneConfig, floor: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The environment's boxes (`environment_boxes`, without the floor when `floor` is
     False) as arrays: centres (M, 3), half sizes (M, 3) and yaws about z (M,)."""
-    boxes = [b for b in environment_boxes(sc) if floor or b.name != "floor"]
+    boxes = [b for b in environment_boxes(scene) if floor or b.name != "floor"]
     return (np.array([b.center for b in boxes], float).reshape(-1, 3),
             0.5 * np.array([b.size for b in boxes], float).reshape(-1, 3),
             np.array([b.yaw for b in boxes], float))
 
 
-def chair_boxes(sc: Scenario) -> list[Box]:
+def chair_boxes(scene: SceneConfig) -> list[Box]:
     """Nine chairs on a ring around the table (Vasquez-Gomez et al. 2017 Fig. 13): seat + backrest each, in ten
     slots 36 deg apart with the slot on the -x side (where the robot starts) left open."""
     out = []
@@ -92,7 +92,7 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
 
     world = plant.world_body()
     friction = CoulombFriction(0.5, 0.5)
-    for b in environment_boxes(sc):
+    for b in environment_boxes(sc.scene):
         X = _pose(b.center, b.yaw)
         if b.name == "floor" and floor_drop:
             X = _pose((b.center[0], b.center[1], b.center[2] - floor_drop), b.yaw)

@@ -59,7 +59,7 @@ def test_table_points_are_not_object_hits():
 
 def test_mapper_system_integrates_each_registered_scan_once():
     sc = Scenario()
-    mapper = OctreeMapper(sc, 0.1)
+    mapper = OctreeMapper(sc.scene, sc.mapper, 0.1)
     sim = Simulator(mapper)
     ctx = sim.get_mutable_context()
     pts, X = _wall_scan()

@@ -73,7 +73,7 @@ def test_surface_fusion_meshes_the_registered_scans(sphere):
     V, T, _ = sphere
     sc = Scenario()
     c = np.array([0.0, 0.0, sc.scene.table_height + R + 0.05])
-    fusion = SurfaceFusion(sc, 0.1)
+    fusion = SurfaceFusion(sc.scene, sc.mapper, sc.sensor, 0.1)
     sim = Simulator(fusion)
     ctx = sim.get_mutable_context()
     port = fusion.GetInputPort("registered_scan")

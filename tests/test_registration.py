@@ -178,7 +178,7 @@ def _localisation_and_mapper(sc, kin, q0):
     from nbvs_drake.systems.localisation import Localisation
     b = DiagramBuilder()
     loc = b.AddNamedSystem("localisation", Localisation.for_scenario(sc, kin, q0, 0.1))
-    mapper = b.AddNamedSystem("octree_mapper", OctreeMapper(sc, 0.1))
+    mapper = b.AddNamedSystem("octree_mapper", OctreeMapper(sc.scene, sc.mapper, 0.1))
     b.Connect(loc.GetOutputPort("registered_scan"), mapper.GetInputPort("registered_scan"))
     b.Connect(mapper.GetOutputPort("map"), loc.GetInputPort("map"))
     for name in ("point_cloud", "depth_image", "controller_status", "controls"):

@@ -97,14 +97,14 @@ def build_mission_diagram(sc: Scenario, work_dir: Path, log=None, meshcat=None) 
     rgbd, to_pc = camera.rgbd, camera.to_pc
     belief_pose = builder.AddNamedSystem("believed_camera_pose", CameraPose(kin))
     loc = builder.AddNamedSystem("localisation", Localisation.for_scenario(sc, kin, q0, dt))
-    mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc, dt))
+    mapper = builder.AddNamedSystem("octree_mapper", OctreeMapper(sc.scene, sc.mapper, dt))
     recovery = None
     if sc.localisation.verified_views is not None:
         from ..planning import make_recovery
         recovery = make_recovery(sc, kin, planner_impl)
     planner = builder.AddNamedSystem("nbvs_planner", NBVSPlanner.for_scenario(sc, planner_impl, q0, recovery))
     monitor = builder.AddNamedSystem("collision_monitor", CollisionMonitor(truth_model, dt))
-    fusion = builder.AddNamedSystem("surface_fusion", SurfaceFusion(sc, dt))
+    fusion = builder.AddNamedSystem("surface_fusion", SurfaceFusion(sc.scene, sc.mapper, sc.sensor, dt))
 
     builder.Connect(planner.GetOutputPort("controls"), ctrl.GetInputPort("controls"))
     builder.Connect(ctrl.GetOutputPort("velocity"), kplant.GetInputPort("velocity"))

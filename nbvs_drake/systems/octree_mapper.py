@@ -7,7 +7,7 @@ import time
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from ..config import Scenario
+from ..config import MapperConfig, SceneConfig
 from ..mapping.occupancy import OccupancyMap
 from .messages import RegisteredScan, ScanReport
 
@@ -29,11 +29,12 @@ class OctreeMapper(LeafSystem):
     State: abstract map and report.
     """
 
-    def __init__(self, sc: Scenario, dt: float):
+    def __init__(self, scene: SceneConfig, mapper: MapperConfig, dt: float):
+        """`scene`: W_box and the table; `mapper`: the map's settings."""
         super().__init__()
-        self.sc = sc
+        self.mapper = mapper
         self._scan = self.DeclareAbstractInputPort("registered_scan", AbstractValue.Make(RegisteredScan()))
-        self._map = self.DeclareAbstractState(AbstractValue.Make(OccupancyMap.for_scenario(sc)))
+        self._map = self.DeclareAbstractState(AbstractValue.Make(OccupancyMap.for_scene(scene, mapper)))
         self._rep = self.DeclareAbstractState(AbstractValue.Make(ScanReport()))
         self.DeclareStateOutputPort("map", self._map)
         self.DeclareStateOutputPort("scan_report", self._rep)
@@ -46,7 +47,7 @@ class OctreeMapper(LeafSystem):
             return
         t1 = time.perf_counter()
         if scan.integrate:
-            new, stats = omap.integrate(scan.origin, scan.points, self.sc.mapper.table_clearance, scan.free_rays)
+            new, stats = omap.integrate(scan.origin, scan.points, self.mapper.table_clearance, scan.free_rays)
         else:
             new, stats = omap.skipped(), {"points": int(len(scan.points)), "no_return_rays": int(len(scan.free_rays)),
                                           "object_points": 0, "voxels_updated": 0}

@@ -6,7 +6,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
-from ..config import Scenario, resolve_sensor
+from ..config import MapperConfig, SceneConfig, SensorConfig, resolve_sensor
 from ..perception.reconstruction import depth_from_points, fuse_tsdf
 from ..world.sensor import intrinsics
 from .messages import RegisteredScan
@@ -38,17 +38,19 @@ class SurfaceFusion(LeafSystem):
     State: abstract (the scans kept).
     """
 
-    def __init__(self, sc: Scenario, dt: float, voxel: float = 0.003, margin: float = 0.05):
+    def __init__(self, scene: SceneConfig, mapper: MapperConfig, sensor: SensorConfig, dt: float,
+                 voxel: float = 0.003, margin: float = 0.05):
+        """`scene`: W_box and the table (the crop); `mapper`: the table clearance; `sensor`: the
+        depth camera's intrinsics and range."""
         super().__init__()
-        self.sc = sc
         self.voxel = voxel
-        s = sc.scene
+        s = scene
         self._lo = np.array([s.bbox_min[0] - margin, s.bbox_min[1] - margin, s.table_height - margin])
         self._hi = np.array(s.bbox_max, float) + margin
-        self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.table_height + sc.mapper.table_clearance])
+        self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.table_height + mapper.table_clearance])
         self.crop_max = np.array(s.bbox_max, float)
-        self._intr = intrinsics(sc.sensor)
-        self._z_far = resolve_sensor(sc.sensor).z_far
+        self._intr = intrinsics(sensor)
+        self._z_far = resolve_sensor(sensor).z_far
         self._scan = self.DeclareAbstractInputPort("registered_scan", AbstractValue.Make(RegisteredScan()))
         self._state = self.DeclareAbstractState(AbstractValue.Make(_Scans()))
         empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int32))

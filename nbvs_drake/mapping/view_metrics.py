@@ -327,10 +327,17 @@ def _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez):
 
 
 @nb.njit(cache=True)
-def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, max_unknown_before_hit,
-                   unknown_blinds, surface_q, vid, ctag, cT, cF, cOH, touched, out, dens, cov_k, pitch, stride2,
-                   near, near_q, occ, occ_centres, blind_reach, NB, score_only, roi, fslot, fdens, fnorm, fcos):
-    """Exact per-voxel DDA of every ray of one view (see evaluate_views). The traversal runs
+def _eval_one_view(grid, sensor, metric, view, work, out):
+    """Exact per-voxel DDA of every ray of one view (see evaluate_views), its arguments grouped
+    by concern: `grid` the map (classes, entropies, unknown and occupied bitmasks, cell
+    summary, origin, voxel size, the cells' near-surface bitmasks, the occupied voxels'
+    centres, the known occluders), `sensor` the rays (camera-frame directions, minimum and
+    maximum range, stride squared, pitch, the reach within which a voxel can blind a ray,
+    whether unknown voxels blind, the unknown voxels a ray may cross before its return),
+    `metric` what is scored (the surface probability of an unknown voxel, sample densities and
+    the coverage constant, the near-surface map, score_only, the region of interest, the
+    facing densities), `view` (camera origin, rotation, view id), `work` the chunk's scratch
+    arrays, `out` the view's row. The traversal runs
     cell by cell with a loop per cell kind: all-free (steps only), all-unknown (steps and
     collects the voxels' bits) and mixed (per-voxel class from the cell's bitmasks).
     When no occupied voxel centre (`occ_centres`) comes within `blind_reach` of the camera
@@ -344,6 +351,11 @@ def _eval_one_view(cls, H, U, O, hc, bmin, res, o, R, dirs_cam, t_near, t_far, m
     corners' projections; every ray when the box is not wholly in front of the camera) are
     traced, up to where they leave the box, for a score that no other ray, and no voxel past
     the box, can change (ranking_score's roi_margin)."""
+    cls, H, U, O, hc, bmin, res, NB, occ_centres, occ = grid
+    dirs_cam, t_near, t_far, stride2, pitch, blind_reach, unknown_blinds, max_unknown_before_hit = sensor
+    surface_q, dens, cov_k, near, near_q, score_only, roi, fslot, fdens, fnorm, fcos = metric
+    o, R, vid = view
+    ctag, cT, cF, cOH, touched = work
     nx, ny, nz = cls.shape
     cy, cz = (ny + 3) >> 2, (nz + 3) >> 2
     ex, ey, ez = bmin[0] + nx * res, bmin[1] + ny * res, bmin[2] + nz * res
@@ -622,14 +634,15 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     cOH = np.zeros((n_chunks, nc), np.uint64)
     touched = np.zeros((n_chunks, nc), np.int32)
     per = (n + n_chunks - 1) // n_chunks
+    grid = (cls, H, U, O, hc, bmin, res, NB, occ_centres, occ)
+    sensor = (dirs_cam, t_near, t_far, stride2, pitch, blind_reach, near_unknown_blinds, max_unknown_before_hit)
+    metric = (surface_q, dens, cov_k, nr, near_q, score_only, roi, fslot, fdens, fnorm, facing_cos)
     for c in nb.prange(n_chunks):
         lo = c * per
         hi = min(n, lo + per)
+        work = (ctag[c], cT[c], cF[c], cOH[c], touched[c])
         for v in range(lo, hi):
-            _eval_one_view(cls, H, U, O, hc, bmin, res, cam_pos[v], cam_rot[v], dirs_cam, t_near, t_far,
-                           max_unknown_before_hit, near_unknown_blinds, surface_q, v + 1, ctag[c], cT[c], cF[c],
-                           cOH[c], touched[c], out[v], dens, cov_k, pitch, stride2, nr, near_q, occ, occ_centres,
-                           blind_reach, NB, score_only, roi, fslot, fdens, fnorm, facing_cos)
+            _eval_one_view(grid, sensor, metric, (cam_pos[v], cam_rot[v], v + 1), work, out[v])
     return out
 
 

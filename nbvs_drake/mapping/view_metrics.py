@@ -791,15 +791,24 @@ def _patch(pitch, t, res, w):
 
 
 @nb.njit(cache=True)
-def _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, o, R, dirs_cam, t_near, t_far, ray_idx,
-                       ray_w, pitch, max_unknown_before_hit, unknown_blinds, surface_q, vid, mark, ctag, acc, out):
-    """Hierarchical traversal of one view: each coarse ray (standing for ray_w[q] rays of its
+def _eval_one_view_hrt(grid, sensor, metric, view, work, out):
+    """Hierarchical traversal of one view, its arguments grouped as `_eval_one_view`'s: `grid`
+    (classes, entropies, the level-a cells' bits, entropy sums and unknown counts, a, origin,
+    voxel size), `sensor` (camera-frame directions, minimum and maximum range, the traced rays
+    and their weights, pitch, whether unknown voxels blind, the unknown voxels a ray may cross),
+    `metric` (the surface probability of an unknown voxel), `view` (origin, rotation, view id),
+    `work` (the chunk's scratch arrays), `out`. Each coarse ray (standing for ray_w[q] rays of its
     pixel block) runs a DDA over the level-a cells. All-free cells are skipped; cells with an
     occupied voxel or mixed classes are refined (exact voxel DDA inside the cell); all-unknown
     cells are accounted at the coarse level like a coarse voxel: the first ray of the view that
     touches one adds all its unknown voxels to FIG and n_posterior, SIG adds the voxels the
     segment crosses times the cell's mean entropy, and the entry voxel of a ray's first unknown
     cell is its first unknown voxel (exact)."""
+    cls, H, bits, hsum, nunk, a, bmin, res = grid
+    dirs_cam, t_near, t_far, ray_idx, ray_w, pitch, unknown_blinds, max_unknown_before_hit = sensor
+    (surface_q,) = metric
+    o, R, vid = view
+    mark, ctag, acc = work
     nx, ny, nz = cls.shape
     cnx, cny, cnz = bits.shape
     s = 1 << a
@@ -912,14 +921,15 @@ def _evaluate_views_hrt(logodds, a, bmin, res, cam_pos, cam_rot, dirs_cam, t_nea
     ctag = np.zeros((n_chunks, ncell), np.int32)
     acc = np.zeros((n_chunks, ncell), np.float64)
     per = (n + n_chunks - 1) // n_chunks
+    grid = (cls, H, bits, hsum, nunk, a, bmin, res)
+    sensor = (dirs_cam, t_near, t_far, ray_idx, ray_w, pitch, unknown_blinds, max_unknown_before_hit)
+    metric = (surface_q,)
     for c in nb.prange(n_chunks):
         lo = c * per
         hi = min(n, lo + per)
+        work = (mark[c], ctag[c], acc[c])
         for v in range(lo, hi):
-            _eval_one_view_hrt(cls, H, bits, hsum, nunk, a, bmin, res, cam_pos[v], cam_rot[v], dirs_cam,
-                               t_near, t_far, ray_idx, ray_w, pitch, max_unknown_before_hit, unknown_blinds, surface_q,
-                               v + 1,
-                               mark[c], ctag[c], acc[c], out[v])
+            _eval_one_view_hrt(grid, sensor, metric, (cam_pos[v], cam_rot[v], v + 1), work, out[v])
     return out
 
 

@@ -46,7 +46,13 @@ def _type_name(t) -> str:
     return getattr(t, "__name__", str(t))
 
 
-def _default(f) -> str:
+def _is_variant(t) -> bool:
+    """Whether a field's type is a union of several dataclasses (a tagged variant)."""
+    alts = [a for a in typing.get_args(t) if a is not type(None)]
+    return len(alts) > 1 and all(dc.is_dataclass(a) for a in alts)
+
+
+def _default(f, variant: bool = False) -> str:
     if f.default is not dc.MISSING:
         v = f.default
     elif f.default_factory is not dc.MISSING:
@@ -54,8 +60,7 @@ def _default(f) -> str:
     else:
         return ""
     if dc.is_dataclass(v):
-        return f"`!{type(v).__name__}`" if type(v).__name__[0].isupper() and not type(v).__name__.endswith("Config") \
-            else "(section)"
+        return f"`!{type(v).__name__}`" if variant else "(section)"
     if v is None:
         return "null"
     if isinstance(v, bool):
@@ -63,11 +68,11 @@ def _default(f) -> str:
     return f"`{v}`"
 
 
-def _section(cls, path: str, out: list, seen: set) -> None:
+def _section(cls, path: str, out: list, seen: set, variant: bool = False) -> None:
     if cls in seen and path in seen:
         return
     doc = inspect.getdoc(cls) or ""
-    tag = f" — `!{cls.__name__}`" if not cls.__name__.endswith("Config") and path else ""
+    tag = f" — `!{cls.__name__}`" if variant else ""
     out += [(f"### `{path}`" if path else "### The top level") + tag, ""]
     if doc:
         out += [" ".join(doc.split()), ""]
@@ -76,14 +81,16 @@ def _section(cls, path: str, out: list, seen: set) -> None:
     rows, nested = [], []
     for f in dc.fields(cls):
         t = hints[f.name]
-        rows.append(f"| `{f.name}` | {_type_name(t)} | {_default(f)} | {comments.get(f.name, '')} |")
+        var = _is_variant(t)
+        rows.append(f"| `{f.name}` | {_type_name(t) if var or not dc.is_dataclass(t) else 'section'} | "
+                    f"{_default(f, var)} | {comments.get(f.name, '')} |")
         alts = [a for a in typing.get_args(t) if a is not type(None)] or [t]
         for a in alts:
             if dc.is_dataclass(a):
-                nested.append((a, f"{path}.{f.name}" if path else f.name))
+                nested.append((a, f"{path}.{f.name}" if path else f.name, var))
     out += ["| field | type | default | meaning |", "| --- | --- | --- | --- |", *rows, ""]
-    for a, p in nested:
-        _section(a, p, out, seen)
+    for a, p, var in nested:
+        _section(a, p, out, seen, var)
 
 
 def reference() -> str:

@@ -135,7 +135,7 @@ class SceneConfig:
     bbox_max: list[float] = dc.field(default_factory=lambda: [0.4, 0.4, 0.95])
     #: none, or chairs (nine chairs around the table, Vasquez-Gomez et al. 2017 Fig. 13)
     clutter: str = "none"
-    object: ObjectConfig = dc.field(default_factory=ObjectConfig)
+    object: ObjectConfig = dc.field(default_factory=ObjectConfig)  #: the object reconstructed
     gt_points: int = 40000  #: ground-truth surface samples for coverage
 
     def check(self, at: str = "scene") -> None:
@@ -283,7 +283,7 @@ class VerifiedViews:
     #: REGISTERED_SIGMA) and integrated there: a frame registered from a large error can
     #: stop in a wrong minimum that fits
     refine_scan: bool = False
-    landmarks: Landmarks = dc.field(default_factory=Landmarks)
+    landmarks: Landmarks = dc.field(default_factory=Landmarks)  #: which registration landmarks count as in view
     #: the spread (m, m, rad standard deviations in x, y, heading) of a registered belief that
     #: the rollouts of each leg and of the recovery paths start from: the registration's own
     #: accuracy (the open scene's measured up to ~2 cm; the room's, with the chairs in the
@@ -499,12 +499,12 @@ class Obstacles:
 @dc.dataclass
 class PlannerConfig:
     """The next-best-view/state planner."""
-    strategy: Strategy = dc.field(default_factory=RandomSampling)
+    strategy: Strategy = dc.field(default_factory=RandomSampling)  #: how candidate views/states are found
     #: the information term: sur (Vasquez-Gomez et al. 2017's surface factor), fig, sig, vuv,
     #: rsv (the ORT paper), seed001 (Santos et al. 2020), surface (the share of rays expected to
     #: return on new surface) or coverage (the covered surface area the view is expected to add)
     metric: str = "sur"
-    coverage: CoverageGain = dc.field(default_factory=CoverageGain)
+    coverage: CoverageGain = dc.field(default_factory=CoverageGain)  #: settings of the metric coverage
     n_candidates: int = 4000  #: state samples whose director ray meets W_box
     max_generation_factor: int = 200  #: at most this many x n_candidates raw samples
     #: the director ray must enter W_box within this distance (m): where the sensor samples
@@ -515,12 +515,14 @@ class PlannerConfig:
     #: the distance weights of eq. 8 (x, y, theta, q1..q5)
     weights: list[float] = dc.field(default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     use_distance: bool = True  #: the dist(x) factor of g
-    evaluator: Union[Exact, Hrt] = dc.field(default_factory=Exact)
+    evaluator: Union[Exact, Hrt] = dc.field(default_factory=Exact)  #: how a view's rays are cast through the map
+    #: the utility the candidates with a path are ranked by
     utility: Union[Deterministic, Expected] = dc.field(default_factory=Deterministic)
+    #: how the paths to the top candidates are found
     motion_planner: Union[RrtExtExt, Roadmap] = dc.field(default_factory=RrtExtExt)
     tree_step: float = 1.0  #: tree extension step (RRT, ORT) in the weighted metric of eq. 8
-    steering: Steering = dc.field(default_factory=Steering)
-    obstacles: Obstacles = dc.field(default_factory=Obstacles)
+    steering: Steering = dc.field(default_factory=Steering)  #: the steering function's path shapes
+    obstacles: Obstacles = dc.field(default_factory=Obstacles)  #: what pos(x) and the paths avoid
     #: when no candidate is feasible under the motion noise, views from the current base by the
     #: arm alone before the run stops with no_feasible_under_noise
     noise_fallback: bool = False
@@ -656,14 +658,15 @@ class Scenario:
     seed: int = 0  #: every random draw of the run derives from it: same seed, same result
     #: the preset the file starts from (config/presets/: paper, nbvs, nbvs_noise, nbvs_room)
     preset: Optional[str] = None
-    robot: RobotConfig = dc.field(default_factory=RobotConfig)
-    scene: SceneConfig = dc.field(default_factory=SceneConfig)
-    sensor: SensorConfig = dc.field(default_factory=SensorConfig)
-    noise: NoiseConfig = dc.field(default_factory=NoiseConfig)
-    mapper: MapperConfig = dc.field(default_factory=MapperConfig)
+    robot: RobotConfig = dc.field(default_factory=RobotConfig)  #: the robot and its velocity limits
+    scene: SceneConfig = dc.field(default_factory=SceneConfig)  #: the table, the object, W_box, the chairs
+    sensor: SensorConfig = dc.field(default_factory=SensorConfig)  #: the depth camera
+    noise: NoiseConfig = dc.field(default_factory=NoiseConfig)  #: the control noise
+    mapper: MapperConfig = dc.field(default_factory=MapperConfig)  #: the occupancy map
+    #: the registration and the verified views
     localisation: LocalisationConfig = dc.field(default_factory=LocalisationConfig)
-    planner: PlannerConfig = dc.field(default_factory=PlannerConfig)
-    mission: MissionConfig = dc.field(default_factory=MissionConfig)
+    planner: PlannerConfig = dc.field(default_factory=PlannerConfig)  #: the next-best-view/state planner
+    mission: MissionConfig = dc.field(default_factory=MissionConfig)  #: when the mission stops
     base_dir: str = ""  #: the folder relative paths (meshes) are resolved against; set by the loader
 
     def check(self) -> "Scenario":

@@ -7,7 +7,7 @@ from pydrake.perception import BaseField, Fields, PointCloud
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.sensors import ImageDepth32F
 
-from nbvs_drake.config import Scenario
+from nbvs_drake.config import DepthFaults, Scenario
 from nbvs_drake.mapping.occupancy import OccupancyMap
 from nbvs_drake.systems.depth_camera import DepthNoise
 from nbvs_drake.systems.localisation import Localisation
@@ -77,6 +77,7 @@ def test_depth_noise_is_the_sensor_model():
     np.testing.assert_array_equal(out[np.isfinite(z)], z[np.isfinite(z)])
     kinect = Scenario()
     kinect.sensor.preset = "kinect"
+    kinect.sensor.faults = DepthFaults.none()  # the axial noise alone (the faults: tests/test_depth_faults.py)
     noise = DepthNoise(kinect.sensor, 3, 0.1)
     ctx = noise.CreateDefaultContext()
     noise.GetInputPort("depth_image").FixValue(ctx, AbstractValue.Make(image))

@@ -152,6 +152,40 @@ class SceneConfig:
 
 
 @dc.dataclass
+class DepthFaults:
+    """A structured-light sensor's faults beyond axial noise (the Kinect v1: Khoshelham &
+    Elberink 2012 for the disparity, Nguyen, Izadi & Lovell 2012 for the lateral noise and the
+    incidence angle). Each is off at 0 (grazing_deg at 90)."""
+    #: projector-to-camera baseline (m, along the image's +x): the projector's shadow beside a
+    #: depth step, f b (1/z_near - 1/z_far) pixels wide on the far surface, returns nothing
+    baseline_m: float = 0.075
+    #: the disparity f b / z is measured in steps of this many pixels: depth comes in steps of
+    #: z^2 step / (f b) (about 2.5 cm at 3 m)
+    disparity_step_px: float = 0.125
+    #: lateral noise sigma (pixels) of the Nguyen et al. model, 0.8 + 0.035 theta / (pi/2 - theta)
+    #: at incidence angle theta: each pixel takes the depth of a neighbour that far off
+    lateral_px: float = 0.8
+    lateral_gain: float = 0.035
+    #: no return where the surface is seen at more than this incidence angle (degrees)
+    grazing_deg: float = 80.0
+
+    @staticmethod
+    def none() -> "DepthFaults":
+        """Every fault off."""
+        return DepthFaults(baseline_m=0.0, disparity_step_px=0.0, lateral_px=0.0, lateral_gain=0.0, grazing_deg=90.0)
+
+    def any(self) -> bool:
+        return bool(self.baseline_m or self.disparity_step_px or self.lateral_px or self.lateral_gain
+                    or self.grazing_deg < 90.0)
+
+    def check(self, at: str) -> None:
+        require(finite(self.baseline_m, self.disparity_step_px, self.lateral_px, self.lateral_gain, self.grazing_deg)
+                and self.disparity_step_px >= 0 and self.lateral_px >= 0 and self.lateral_gain >= 0,
+                f"{at}: baseline_m must be finite and disparity_step_px, lateral_px, lateral_gain >= 0")
+        require(0 < self.grazing_deg <= 90, f"{at}.grazing_deg must be in (0, 90], got {self.grazing_deg}")
+
+
+@dc.dataclass
 class SensorConfig:
     """The depth camera: a preset, each of whose values a field may replace (None: the preset's)."""
     #: sr4000 (176x144 ToF, 43.6x34.6 deg, 0.4-5 m), kinect (640x480, 57x43 deg, 0.7-6 m, axial
@@ -165,6 +199,9 @@ class SensorConfig:
     z_far: Optional[float] = None
     noise_a: Optional[float] = None  #: axial noise sigma_z = noise_a + noise_b (z - 0.4)^2 (m)
     noise_b: Optional[float] = None
+    #: structured-light faults (shadows, disparity steps, lateral noise, grazing dropouts);
+    #: None: the preset's (the Kinect's; none for the SR4000)
+    faults: Optional[DepthFaults] = None
 
     def resolved(self) -> "SensorConfig":
         """A copy with every field filled in from the preset."""
@@ -176,6 +213,10 @@ class SensorConfig:
             base = {}
         vals = {}
         for f in dc.fields(self):
+            if f.name == "faults":
+                vals["faults"] = self.faults if self.faults is not None else (
+                    DepthFaults() if self.preset == "kinect" else DepthFaults.none())
+                continue
             if f.name == "preset":
                 continue
             v = getattr(self, f.name)
@@ -192,6 +233,7 @@ class SensorConfig:
                 f"{at} field of view must be in (0, 180) deg, got {rs.fov_x_deg}x{rs.fov_y_deg}")
         require(0 < rs.z_near < rs.z_far, f"{at} range needs 0 < z_near < z_far, got {rs.z_near}..{rs.z_far}")
         require(rs.noise_a >= 0 and rs.noise_b >= 0, f"{at}.noise_a/noise_b must be >= 0")
+        rs.faults.check(f"{at}.faults")
 
 
 @dc.dataclass

@@ -51,6 +51,14 @@ class ScanRenderer:
         self.dirs = ray_directions(sc.sensor, 1)[0]
         self.z_far = resolve_sensor(sc.sensor).z_far
 
+    def depth(self, q) -> np.ndarray:
+        """The depth image (h, w) the sensor returns at state q (its noise and faults applied)."""
+        q = np.asarray(q, float)
+        self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))
+        self.diagram.get_input_port(1).FixValue(self.context, q)
+        noise = self.camera.noise
+        return np.array(self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data)[:, :, 0]
+
     def scan(self, q) -> Scan:
         q = np.asarray(q, float)
         self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))

@@ -23,7 +23,7 @@ from pydrake.systems.sensors import PixelType, RgbdSensor
 
 from ..config import SensorConfig, resolve_sensor
 from ..world.robot import CAMERA_BODY, RobotKinematics
-from ..world.sensor import axial_noise_sigma, camera_info, render_camera_info
+from ..world.sensor import apply_depth_faults, axial_noise_sigma, camera_info, render_camera_info
 
 RENDERER = "vtk"
 
@@ -69,10 +69,13 @@ def add_depth_camera(builder, scene_graph, plant, sensor: SensorConfig, seed: in
 
 
 class DepthNoise(LeafSystem):
-    """The sensor's axial depth noise: each finite depth z becomes z + N(0, sigma_z(z)^2) with
+    """The sensor's depth noise: each finite depth z becomes z + N(0, sigma_z(z)^2) with
     sigma_z = noise_a + noise_b (z - 0.4)^2 (the Kinect model of Nguyen et al. 2012; zero for
-    the ToF preset, whose image passes unchanged). Pixels without a return (+-inf) and NaN
-    stay as they are. The draws are seeded by (seed, control step of the image's time).
+    the ToF preset, whose image passes unchanged); then the sensor's structured-light faults
+    (`world.sensor.apply_depth_faults`: lateral noise, grazing dropouts, the projector's
+    shadow, disparity steps; the Kinect's), whose missing returns are NaN. Pixels without a
+    return (+-inf; 0, too close) and NaN stay as they are. The draws are seeded by (seed, control step of the
+    image's time), the axial noise's and the faults' apart.
 
     Input ports:
       - depth_image (abstract ImageDepth32F): the rendered depth image.
@@ -86,7 +89,9 @@ class DepthNoise(LeafSystem):
         self.sensor = sensor
         self.seed = int(seed)
         self.dt = float(dt)
-        self.active = bool(np.any(axial_noise_sigma(sensor, np.array([0.4, 5.0])) > 0))
+        self.axial = bool(np.any(axial_noise_sigma(sensor, np.array([0.4, 5.0])) > 0))
+        self.faults = resolve_sensor(sensor).faults.any()
+        self.active = self.axial or self.faults
         self._in = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
         self.DeclareAbstractOutputPort("depth_image", lambda: AbstractValue.Make(ImageDepth32F()), self._calc)
 
@@ -96,10 +101,14 @@ class DepthNoise(LeafSystem):
             output.set_value(image)
             return
         z = np.array(image.data, np.float64)
-        finite = np.isfinite(z)
-        rng = np.random.default_rng([self.seed, 11, int(round(context.get_time() / self.dt))])
-        dz = rng.normal(0.0, 1.0, z.shape) * axial_noise_sigma(self.sensor, np.where(finite, z, 0.4))
-        z = np.where(finite, z + dz, z)
+        finite = np.isfinite(z) & (z > 0)  # 0: too close, no return (as +inf: too far)
+        step = int(round(context.get_time() / self.dt))
+        if self.axial:
+            rng = np.random.default_rng([self.seed, 11, step])
+            dz = rng.normal(0.0, 1.0, z.shape) * axial_noise_sigma(self.sensor, np.where(finite, z, 0.4))
+            z = np.where(finite, z + dz, z)
+        if self.faults:
+            z = apply_depth_faults(z[:, :, 0], self.sensor, np.random.default_rng([self.seed, 12, step]))[:, :, None]
         out = output.get_mutable_value()
         out.resize(image.width(), image.height())
         out.mutable_data[:] = z.astype(np.float32)

@@ -63,6 +63,90 @@ def axial_noise_sigma(sensor: SensorConfig, z: np.ndarray) -> np.ndarray:
     return s.noise_a + s.noise_b * (np.asarray(z) - 0.4) ** 2
 
 
+def apply_depth_faults(z: np.ndarray, sensor: SensorConfig, rng: np.random.Generator) -> np.ndarray:
+    """A structured-light sensor's faults (`DepthFaults`) applied to a depth image z (h, w),
+    metres, after its axial noise; returns a new image. Pixels that return nothing become NaN
+    (no return, but not free space either: a surface is there), except those that had no
+    return already (+-inf, NaN), which stay as they are.
+
+    - Lateral noise (Nguyen, Izadi & Lovell 2012): each pixel takes the depth of the pixel
+      sigma_L pixels off, sigma_L = lateral_px + lateral_gain theta / (pi/2 - theta) at the
+      surface's incidence angle theta (normals from the image's neighbours).
+    - Grazing incidence: no return where theta > grazing_deg.
+    - The projector's shadow: the projector sits baseline_m along the image's +x; a pixel whose
+      projector ray passes behind a nearer surface of its row (its projector column
+      u - f b / z above the least of those of the pixels towards the projector) returns nothing.
+    - Disparity steps (Khoshelham & Elberink 2012): the disparity f b / z is rounded to
+      disparity_step_px, so depth comes in steps of about z^2 step / (f b)."""
+    faults = resolve_sensor(sensor).faults
+    z = np.array(z, np.float64)
+    if not faults.any():
+        return z
+    h, w = z.shape
+    _, _, fx, fy, cx, cy = intrinsics(sensor)
+    valid = np.isfinite(z) & (z > 0)
+    theta = incidence_angles(z, fx, fy, cx, cy)
+    out = z.copy()
+    if faults.lateral_px or faults.lateral_gain:
+        th = np.clip(np.nan_to_num(theta, nan=0.0), 0.0, np.radians(89.0))
+        sig = faults.lateral_px + faults.lateral_gain * th / (np.pi / 2 - th)
+        du = np.rint(rng.normal(0.0, 1.0, z.shape) * sig).astype(int)
+        dv = np.rint(rng.normal(0.0, 1.0, z.shape) * sig).astype(int)
+        vv, uu = np.mgrid[0:h, 0:w]
+        src = z[np.clip(vv + dv, 0, h - 1), np.clip(uu + du, 0, w - 1)]
+        out = np.where(valid, src, z)
+        out = np.where(valid & ~(np.isfinite(out) & (out > 0)), np.nan, out)
+    drop = np.zeros(z.shape, bool)
+    if faults.grazing_deg < 90.0:
+        drop |= valid & (np.nan_to_num(theta, nan=0.0) > np.radians(faults.grazing_deg))
+    fb = fx * faults.baseline_m
+    if fb:
+        drop |= valid & projector_shadow(z, fb)
+    if faults.disparity_step_px:
+        ok = np.isfinite(out) & (out > 0)
+        d = np.where(ok, abs(fb) / np.where(ok, out, 1.0), 0.0) if fb else np.zeros_like(out)
+        if fb:
+            dq = np.maximum(np.rint(d / faults.disparity_step_px), 1.0) * faults.disparity_step_px
+            out = np.where(ok, abs(fb) / dq, out)
+    out[drop] = np.nan
+    return out
+
+
+def incidence_angles(z: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """The angle (rad) between each pixel's ray and the surface normal estimated from its
+    neighbours' back-projected points (central differences); NaN where a neighbour is missing."""
+    h, w = z.shape
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    P = np.stack([(uu - cx) / fx * z, (vv - cy) / fy * z, z], axis=-1)
+    P = np.where(np.isfinite(P), P, np.nan)
+    du = np.full_like(P, np.nan)
+    dv = np.full_like(P, np.nan)
+    du[:, 1:-1] = P[:, 2:] - P[:, :-2]
+    dv[1:-1, :] = P[2:, :] - P[:-2, :]
+    n = np.cross(du, dv)
+    ray = P / np.linalg.norm(P, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.abs(np.sum(n * ray, axis=-1)) / np.linalg.norm(n, axis=-1)
+        return np.arccos(np.clip(c, 0.0, 1.0))
+
+
+def projector_shadow(z: np.ndarray, fb: float) -> np.ndarray:
+    """Pixels in the projector's shadow: the projector sits at fb / fx metres along +x (fb > 0)
+    or -x; a pixel's projector column is u - fb / z, and along its row the projector lights
+    it only when that column does not exceed the least of the columns of the pixels between it
+    and the projector (a nearer surface there would block the projector's ray)."""
+    h, w = z.shape
+    ok = np.isfinite(z) & (z > 0)
+    p = np.where(ok, np.arange(w)[None, :] - fb / np.where(ok, z, 1.0), np.inf)
+    if fb < 0:  # the projector on the other side: mirror the rows
+        return projector_shadow(z[:, ::-1], -fb)[:, ::-1]
+    # towards the projector is +u: the least projector column of the pixels to the right
+    right = np.minimum.accumulate(p[:, ::-1], axis=1)[:, ::-1]
+    beyond = np.full_like(p, np.inf)
+    beyond[:, :-1] = right[:, 1:]
+    return ok & (p > beyond + 1e-9)
+
+
 def clean_scan(points_xyz: np.ndarray) -> np.ndarray:
     """(N, 3) finite returns of a (3, N) Drake point cloud: pixels with no return (+-inf) and
     NaN depth are dropped, never passed to the map."""

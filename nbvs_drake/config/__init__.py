@@ -2,7 +2,6 @@
 unions), the presets it starts from, the loader and the migration of the old flat schema."""
 
 from .load import (  # noqa: F401
-                   apply_preset,
                    apply_setting,
                    load_scenario,
                    preset_names,

@@ -4,7 +4,6 @@ dotted settings, then the kind's defaults, then the checks. A scenario in the ol
 
 from __future__ import annotations
 
-import copy
 import dataclasses as dc
 import typing
 from pathlib import Path
@@ -116,44 +115,34 @@ def _field_type(cls, name):
     return hints.get(name)
 
 
-def _tags_along(scenario: Scenario, parts: list[str]) -> list[str | None] | None:
-    """For each key of a dotted path but the last, the tag its mapping needs so that the
-    setting merges into the current variant ("!Hrt" when planner.evaluator is an Hrt), or
-    None. None for the whole path when it does not reach into the current value (a field of
-    another variant, or of an unset optional section)."""
+def _walk_setting(scenario: Scenario, parts: list[str]):
+    """Walks a dotted path through the scenario's current values. Returns (tags, None) when it
+    reaches a field: for each key but the last, the tag its mapping needs so that the setting
+    merges into the current variant ("!Hrt" when planner.evaluator is an Hrt) or None. Returns
+    (None, (path, variant, key)) when it names a field that the current variant at `path`
+    lacks, and (None, None) when it leaves the schema or enters an unset optional section."""
     tags, obj = [], scenario
-    for k in parts[:-1]:
-        if not dc.is_dataclass(obj) or not any(f.name == k for f in dc.fields(obj)):
-            return None
-        t = _field_type(type(obj), k)
-        obj = getattr(obj, k)
-        args = [a for a in typing.get_args(t) if a is not type(None)]
-        tag = None
-        if len(args) > 1 and obj is not None and type(obj) is not args[0]:
-            tag = "!" + type(obj).__name__
-        tags.append(tag)
-        if obj is None:
-            return None
-    if not dc.is_dataclass(obj) or not any(f.name == parts[-1] for f in dc.fields(obj)):
-        return None
-    return tags
-
-
-def _refuse_other_variant(scenario: Scenario, parts: list[str], setting: str) -> None:
-    """Raises when the dotted path names a field of a variant other than the current one
-    (an untagged mapping would silently switch to the first variant)."""
-    obj = scenario
     for i, k in enumerate(parts[:-1]):
         if not dc.is_dataclass(obj) or not any(f.name == k for f in dc.fields(obj)):
-            return
-        t = _field_type(type(obj), k)
+            return None, None
+        alts = [a for a in typing.get_args(_field_type(type(obj), k)) if a is not type(None)]
         obj = getattr(obj, k)
-        alts = [a for a in typing.get_args(t) if a is not type(None)]
-        nxt = parts[i + 1]
-        if len(alts) > 1 and dc.is_dataclass(obj) and not any(f.name == nxt for f in dc.fields(obj)):
-            where = ".".join(parts[:i + 1])
-            raise ScenarioError(f"setting {setting!r}: {where} is !{type(obj).__name__}, which has no field {nxt!r} "
-                                f"(choose the variant: {where}=!Name {{...}})")
+        if obj is None:
+            return None, None
+        variant = len(alts) > 1
+        if variant and dc.is_dataclass(obj) and not any(f.name == parts[i + 1] for f in dc.fields(obj)):
+            return None, (".".join(parts[:i + 1]), type(obj).__name__, parts[i + 1])
+        tags.append("!" + type(obj).__name__ if variant and type(obj) is not alts[0] else None)
+    if not dc.is_dataclass(obj) or not any(f.name == parts[-1] for f in dc.fields(obj)):
+        return None, None
+    return tags, None
+
+
+def _setting_text(parts: list[str], value: str, tags=None) -> str:
+    """The YAML document of one dotted setting, each mapping with its tag (or none)."""
+    tags = tags or [None] * (len(parts) - 1)
+    text = "".join(f"{'  ' * i}{k}:{' ' + t if t else ''}\n" for i, (k, t) in enumerate(zip(parts[:-1], tags)))
+    return text + f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}\n"
 
 
 def apply_setting(scenario: Scenario, setting: str) -> Scenario:
@@ -173,17 +162,17 @@ def apply_setting(scenario: Scenario, setting: str) -> Scenario:
         raise ScenarioError(f"setting {setting!r}: expected section.field=value, e.g. noise.sigma_w=0.14")
     if legacy.is_old_setting(".".join(parts), value):
         return _apply_old_setting(scenario, parts, value, setting)
-    tags = _tags_along(scenario, parts)
+    tags, other = _walk_setting(scenario, parts)
     if tags is None:
         if optional:
             return scenario
-        _refuse_other_variant(scenario, parts, setting)
-        tags = [None] * (len(parts) - 1)
-    text = "".join(f"{'  ' * i}{k}:{' ' + t if t else ''}\n" for i, (k, t) in enumerate(zip(parts[:-1], tags)))
-    text += f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}\n"
+        if other is not None:  # an untagged mapping would silently switch to the first variant
+            where, variant, key = other
+            raise ScenarioError(f"setting {setting!r}: {where} is !{variant}, which has no field {key!r} "
+                                f"(choose the variant: {where}=!Name {{...}})")
     from pydrake.common.yaml import yaml_load_typed
     try:
-        out = yaml_load_typed(schema=Scenario, data=text, defaults=scenario)
+        out = yaml_load_typed(schema=Scenario, data=_setting_text(parts, value, tags), defaults=scenario)
     except Exception as e:  # noqa: BLE001 - yaml_load_typed raises RuntimeError / ValueError / TypeError
         raise ScenarioError(f"setting {setting!r}: {' '.join(str(e).split())}") from None
     out.preset = scenario.preset
@@ -191,25 +180,12 @@ def apply_setting(scenario: Scenario, setting: str) -> Scenario:
 
 
 def _apply_old_setting(scenario: Scenario, parts, value, setting) -> Scenario:
-    text = "".join(f"{'  ' * i}{k}:\n" for i, k in enumerate(parts[:-1]))
-    text += f"{'  ' * (len(parts) - 1)}{parts[-1]}: {value}\n"
     try:
-        old = legacy.load_old_text(text, legacy.to_old(scenario))
+        old = legacy.load_old_text(_setting_text(parts, value), legacy.to_old(scenario))
     except Exception as e:  # noqa: BLE001
         raise ScenarioError(f"setting {setting!r}: {' '.join(str(e).split())}") from None
     out = legacy.from_old(old)
     out.preset = scenario.preset
-    return out
-
-
-def apply_preset(scenario: Scenario, name: str) -> Scenario:
-    """`scenario` with a preset's sections merged over it (what a preset sets wins)."""
-    text = _preset_text(name)
-    base = _raw(text, f"preset {name}").get("preset")
-    if base:
-        scenario = apply_preset(scenario, base)
-    out = _typed(text, copy.deepcopy(scenario), f"preset {name}")
-    out.preset = name
     return out
 
 

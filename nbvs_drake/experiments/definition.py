@@ -252,29 +252,17 @@ def resolve(d: dict, quick: bool = False, seeds=None) -> dict:
     return r
 
 
-def _parent(factor: dict, level: dict):
-    if level.get("from") is None:
-        return None
-    return next(lv for lv in factor["levels"] if str(lv["label"]) == str(level["from"]))
-
-
-def level_set(factor: dict, level: dict) -> list:
-    """A level's overrides: those of the level it starts `from` (recursively), then its own."""
-    parent = _parent(factor, level)
-    return (level_set(factor, parent) if parent else []) + list(level.get("set") or [])
-
-
 def resolved_level(factor: dict, level: dict) -> dict:
-    """A level with its `from` resolved: the parent's scenario and seeds unless it names its
-    own, the parent's overrides before its own."""
-    parent = _parent(factor, level)
+    """A level with its `from` resolved: the overrides of the level it starts from
+    (recursively) before its own, and that level's scenario and seeds unless it names its own."""
     out = {k: v for k, v in level.items() if k != "from"}
-    if parent is not None:
+    out["set"] = list(level.get("set") or [])
+    if level.get("from") is not None:
+        parent = resolved_level(factor, next(lv for lv in factor["levels"] if str(lv["label"]) == str(level["from"])))
         for k in ("scenario", "seeds"):
-            v = resolved_level(factor, parent).get(k)
-            if k not in out and v is not None:
-                out[k] = v
-    out["set"] = level_set(factor, level)
+            if k not in out and parent.get(k) is not None:
+                out[k] = parent[k]
+        out["set"] = parent["set"] + out["set"]
     return out
 
 
@@ -286,14 +274,14 @@ def _skipped(r: dict, labels: dict) -> bool:
 
 
 def cells(r: dict) -> list[dict]:
-    """Every combination of levels but the skipped ones, in definition order: [{factor: level
-    dict}], each level's `set` resolved through its `from`."""
+    """Every combination of levels of a resolved definition (`resolve`: each level's `from`
+    resolved) but the skipped ones, in definition order: [{factor: level dict}]."""
     factors = r.get("factors") or []
     if not factors:
         return [{}]
     out = []
     for combo in itertools.product(*[f["levels"] for f in factors]):
-        combo = {f["name"]: resolved_level(f, lv) for f, lv in zip(factors, combo)}
+        combo = dict(zip([f["name"] for f in factors], combo))
         if not _skipped(r, _labels(combo)):
             out.append(combo)
     return out

@@ -319,7 +319,7 @@ class MotionPlanner:
 
     def _connect_many(self, q0, goals, obstacles, rng) -> list:
         p, rc = self.sc.planner, self.sc.robot
-        if p.is_roadmap() is False or obstacles.collision.certificate is None or rng is None:
+        if not p.is_roadmap() or obstacles.collision.certificate is None or rng is None:
             return [self.connect(q0, g, obstacles, rng) for g in goals]
         out: list = [None] * len(goals)
         length = np.full(len(goals), np.inf)

@@ -37,7 +37,7 @@ class ViewEvaluator:
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
         #: planner.coarse_stride(): the first pass's rays of evaluate_ranked (None: off)
         self.coarse_stride = sc.planner.coarse_stride() if sc.planner.coarse_stride() > self.stride else 0
-        self.refine_views = sc.planner.refine_views() or sc.planner.top_k
+        self.refine_views = sc.planner.refine_views()
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
         full, _, t_far = ray_directions(sc.sensor, 1)  # the outermost pixel centres bound every stride's rays
         self.frustum = (K.frustum_planes(full), float(t_far.max()))

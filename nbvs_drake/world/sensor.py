@@ -85,10 +85,12 @@ def apply_depth_faults(z: np.ndarray, sensor: SensorConfig, rng: np.random.Gener
     h, w = z.shape
     _, _, fx, fy, cx, cy = intrinsics(sensor)
     valid = np.isfinite(z) & (z > 0)
-    theta = incidence_angles(z, fx, fy, cx, cy)
+    lateral = bool(faults.lateral_px or faults.lateral_gain)
+    if lateral or faults.grazing_deg < 90.0:
+        theta = np.nan_to_num(incidence_angles(z, fx, fy, cx, cy), nan=0.0)
     out = z.copy()
-    if faults.lateral_px or faults.lateral_gain:
-        th = np.clip(np.nan_to_num(theta, nan=0.0), 0.0, np.radians(89.0))
+    if lateral:
+        th = np.clip(theta, 0.0, np.radians(89.0))
         sig = faults.lateral_px + faults.lateral_gain * th / (np.pi / 2 - th)
         du = np.rint(rng.normal(0.0, 1.0, z.shape) * sig).astype(int)
         dv = np.rint(rng.normal(0.0, 1.0, z.shape) * sig).astype(int)
@@ -98,16 +100,15 @@ def apply_depth_faults(z: np.ndarray, sensor: SensorConfig, rng: np.random.Gener
         out = np.where(valid & ~(np.isfinite(out) & (out > 0)), np.nan, out)
     drop = np.zeros(z.shape, bool)
     if faults.grazing_deg < 90.0:
-        drop |= valid & (np.nan_to_num(theta, nan=0.0) > np.radians(faults.grazing_deg))
+        drop |= valid & (theta > np.radians(faults.grazing_deg))
     fb = fx * faults.baseline_m
     if fb:
         drop |= valid & projector_shadow(z, fb)
-    if faults.disparity_step_px:
+    if faults.disparity_step_px and fb:  # the disparity f b / z needs a baseline
         ok = np.isfinite(out) & (out > 0)
-        d = np.where(ok, abs(fb) / np.where(ok, out, 1.0), 0.0) if fb else np.zeros_like(out)
-        if fb:
-            dq = np.maximum(np.rint(d / faults.disparity_step_px), 1.0) * faults.disparity_step_px
-            out = np.where(ok, abs(fb) / dq, out)
+        d = np.where(ok, abs(fb) / np.where(ok, out, 1.0), 0.0)
+        dq = np.maximum(np.rint(d / faults.disparity_step_px), 1.0) * faults.disparity_step_px
+        out = np.where(ok, abs(fb) / dq, out)
     out[drop] = np.nan
     return out
 

@@ -2,7 +2,7 @@
 was not developed on: `mug.obj` (a cylinder with a torus handle) and `stack.obj` (a box, a
 sphere and a slanted rod). Usage: python scripts/make_test_objects.py OUT_DIR, then e.g.
 `nbvs reconstruct --set scene.object.kind=mesh --set scene.object.mesh=OUT_DIR/mug.obj`
-(scene.object.size -1 scales the longest side to 0.40 m)."""
+(scene.object.size null: the kind's, the longest side scaled to 0.40 m)."""
 
 import sys
 from pathlib import Path

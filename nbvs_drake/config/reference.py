@@ -52,7 +52,7 @@ def _is_variant(t) -> bool:
     return len(alts) > 1 and all(dc.is_dataclass(a) for a in alts)
 
 
-def _default(f, variant: bool = False) -> str:
+def _default(f, variant: bool) -> str:
     if f.default is not dc.MISSING:
         v = f.default
     elif f.default_factory is not dc.MISSING:
@@ -68,7 +68,7 @@ def _default(f, variant: bool = False) -> str:
     return f"`{v}`"
 
 
-def _section(cls, path: str, out: list, seen: set, variant: bool = False) -> None:
+def _section(cls, path: str, out: list, seen: set, variant: bool) -> None:
     if cls in seen and path in seen:
         return
     doc = inspect.getdoc(cls) or ""
@@ -112,7 +112,7 @@ def reference() -> str:
         doc = " ".join(x.lstrip("# ").strip() for x in text if x.startswith("#"))
         out.append(f"| `{n}` | {doc} |")
     out += ["", "## Sections", ""]
-    _section(S.Scenario, "", out, set())
+    _section(S.Scenario, "", out, set(), False)
     return "\n".join(out).rstrip() + "\n"
 
 

@@ -139,8 +139,8 @@ class LegRule:
     """Where a plan's legs end (localisation.verified_views.legs): `on` when plans run in legs
     (verified views with legs, under motion noise); `min_turn_steps` > 0 (legs.after_turns):
     a leg also ends after a turn in place of at least that many steps that a drive follows."""
-    on: bool = False
-    min_turn_steps: int = 0
+    on: bool
+    min_turn_steps: int
 
     @staticmethod
     def of(verified_views, noise: NoiseConfig, control_dt: float) -> "LegRule":

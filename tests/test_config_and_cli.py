@@ -100,8 +100,8 @@ def test_unknown_scenario_name_lists_the_builtin_ones(capsys, tmp_path):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and "Traceback" not in err
     assert err.startswith("nbvs: error: scenario file not found: teapot_eu (neither a file nor a built-in scenario")
-    assert err.endswith("built-in: cluttered_room, cluttered_room_nbvs, default, teapot_du, teapot_du_mu, "
-                        "teapot_eu_mu, teapot_eu_mu_nbvs)")
+    assert err.endswith("built-in: cluttered_room, cluttered_room_nbvs, default, real_robot, real_robot_humanoid, "
+                        "real_robot_obstacles, teapot_du, teapot_du_mu, teapot_eu_mu, teapot_eu_mu_nbvs)")
     assert not (tmp_path / "out").exists()
 
 

@@ -61,12 +61,15 @@ def test_the_built_in_noise_scenarios_are_their_presets():
                          ("default", "nbvs")):
         sc = load_scenario(name)
         assert sc.preset == preset
-        assert _same(sc, preset_scenario(preset), ignore=("name", "seed", "scene.object.size")) == {}
+        assert _same(sc, preset_scenario(preset).check(), ignore=("name", "seed", "scene.object.size")) == {}
 
 
 @pytest.mark.parametrize("name", sorted(builtin_scenarios()))
 def test_the_old_flat_schema_round_trips(name):
-    """Every built-in scenario, written in the old flat schema and migrated back, is itself."""
+    """Every built-in scenario the old flat schema can say, written in it and migrated back, is
+    itself (the real-robot scenes' supports and the Kinect's faults came after it)."""
+    if name.startswith("real_robot"):
+        pytest.skip("the real-robot scenes postdate the old flat schema")
     sc = load_scenario(name)
     back = from_old(to_old(sc))
     back.preset = sc.preset

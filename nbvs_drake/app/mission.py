@@ -189,11 +189,16 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "coverage": records[-1]["coverage"] if records else 0.0,
         "coverage_5mm": records[-1]["coverage_5mm"] if records else 0.0,
         "coverage_voxel": records[-1]["coverage_voxel"] if records else 0.0,
+        "coverage_1cm": records[-1]["coverage_1cm"] if records else 0.0,
         "coverage_by_scan": [r["coverage"] for r in records],
         # the share of the surface any reachable pose can see (planning/oracle.py), and ours of it
         "coverage_ceiling": ceiling["ceiling"] if ceiling else None,
         "coverage_of_ceiling": (round((records[-1]["coverage"] if records else 0.0) / ceiling["ceiling"], 6)
                                 if ceiling and ceiling["ceiling"] > 0 else None),
+        # at 1 cm (a map of 3 cm voxels): the ceiling and ours of it
+        "coverage_ceiling_1cm": ceiling["ceiling_1cm"] if ceiling else None,
+        "coverage_of_ceiling_1cm": (round((records[-1]["coverage_1cm"] if records else 0.0) / ceiling["ceiling_1cm"], 6)
+                                    if ceiling and ceiling["ceiling_1cm"] > 0 else None),
         "scans": int(omap.scan_count),
         "collisions": collided,
         "executed_trajectories": executed,
@@ -206,6 +211,7 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "reconstruction": reconstruction,
         "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
         "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
+        "reachable_unknown_voxels": records[-1].get("reachable_unknown_voxels") if records else None,
         "object_points": int(len(omap.object_points)),
         "relocalization": sc.localisation.method,
         "pose_error": pose_errors(records),

@@ -260,8 +260,9 @@ def from_old(o: OldScenario) -> S.Scenario:
     sensor = S.SensorConfig(preset=os_.preset, **{
         k: (None if (getattr(os_, k) < 0 if k.startswith("noise") else getattr(os_, k) == 0) else getattr(os_, k))
         for k in ("width", "height", "fov_x_deg", "fov_y_deg", "z_near", "z_far", "noise_a", "noise_b")})
-    if os_.preset == "kinect":  # the old Kinect had axial noise only
+    if os_.preset == "kinect":  # the old Kinect had axial noise only, and a ray per pixel block of stride
         sensor.faults = S.DepthFaults.none()
+        sensor.model_binning = 1
     noise = S.NoiseConfig(sigma_v=o.noise.sigma_v, sigma_w=o.noise.sigma_w, sigma_arm=list(o.noise.sigma_arm),
                           beta=o.noise.beta)
     strategy = {"random_sampling": lambda: S.RandomSampling(),

@@ -54,8 +54,9 @@ def preset_scenario(name: str, _seen=()) -> Scenario:
     return sc
 
 
-def scenario_from_text(text: str, what: str = "") -> Scenario:
-    """A scenario YAML document: today's schema (over its `preset:`), or the old flat one."""
+def scenario_from_text(text: str, what: str = "", preset: str | None = None) -> Scenario:
+    """A scenario YAML document: today's schema (over its `preset:`, or over `preset` when
+    given), or the old flat one."""
     doc = _raw(text, what)
     if not isinstance(doc, dict):
         raise ScenarioError(f"malformed scenario {what}: not a mapping")
@@ -66,7 +67,7 @@ def scenario_from_text(text: str, what: str = "") -> Scenario:
             raise
         except Exception as e:  # noqa: BLE001
             raise ScenarioError(f"malformed scenario {what} (old schema): {' '.join(str(e).split())}") from None
-    preset = doc.get("preset")
+    preset = preset or doc.get("preset")
     start = preset_scenario(str(preset)) if preset else Scenario()
     sc = _typed(text, start, what)
     sc.preset = str(preset) if preset else None
@@ -77,14 +78,17 @@ def load_scenario(path=None, *, seed=None, settings=()) -> Scenario:
     """Loads and checks a scenario: `path` is a YAML file, a built-in scenario's name
     (``"teapot_eu_mu"``) or None (the default scenario). `settings`: "section.field=value"
     overrides (YAML values: "noise.sigma_w=0.14", "planner.evaluator=!Hrt {a: 2}"), applied in
-    order."""
+    order; "preset=NAME" (the last one) first: the file's sections over that preset instead of
+    its own (`--set preset=real_robot_paper`: the same scene with the paper's planner)."""
     from ..resources import scenario_path
     path = scenario_path(path)
     try:
         text = path.read_text()
     except OSError as e:
         raise ScenarioError(f"cannot read scenario file {path}: {e.strerror}") from None
-    scenario = scenario_from_text(text, path.name)
+    presets = [s.partition("=")[2].strip() for s in settings if s.partition("=")[0].strip() == "preset"]
+    settings = [s for s in settings if s.partition("=")[0].strip() != "preset"]
+    scenario = scenario_from_text(text, path.name, preset=presets[-1] if presets else None)
     if not scenario.base_dir:
         scenario.base_dir = str(path.resolve().parent)
     if seed is not None:

@@ -21,17 +21,35 @@ REGISTERED_SIGMA = (0.01, 0.01, 0.01)
 
 #: per-kind defaults of ObjectConfig.size and .up (when None)
 OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up="y"),
-                "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z")}
+                "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z"),
+                "chair": dict(size=0.90, up="z"), "suitcase": dict(size=0.90, up="z"),
+                "humanoid": dict(size=0.58, up="z")}
+#: what the object stands on
+SUPPORTS = ("table", "box", "floor")
+#: the known obstacles beside the table or support
+CLUTTERS = ("none", "chairs", "room", "obstacles")
 OBJECT_UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 
 SENSOR_PRESETS = {
     "sr4000": dict(width=176, height=144, fov_x_deg=43.6, fov_y_deg=34.6, z_near=0.4,
-                   z_far=5.0, noise_a=0.0, noise_b=0.0),
+                   z_far=5.0, noise_a=0.0, noise_b=0.0, model_binning=1),
     "kinect": dict(width=640, height=480, fov_x_deg=57.0, fov_y_deg=43.0, z_near=0.7,
-                   z_far=6.0, noise_a=0.0012, noise_b=0.0019),
+                   z_far=6.0, noise_a=0.0012, noise_b=0.0019, model_binning=3),
 }
 
 METRICS = ("sur", "fig", "sig", "vuv", "rsv", "seed001", "surface", "coverage")
+
+
+def support_clearance(sensor) -> float:
+    """The band above the support that is not object points: the sensor's depth error at 1.5 m
+    (3 sigma_z of its axial noise and half its disparity step), at least 5 mm."""
+    s = sensor.resolved()
+    z = 1.5
+    err = 3 * (s.noise_a + s.noise_b * (z - 0.4) ** 2)
+    if s.faults.baseline_m and s.faults.disparity_step_px:
+        fx = s.width / 2.0 / math.tan(math.radians(s.fov_x_deg) / 2.0)
+        err += 0.5 * z * z * s.faults.disparity_step_px / (fx * s.faults.baseline_m)
+    return round(max(0.005, err), 4)
 
 
 def require(cond: bool, msg: str) -> None:
@@ -79,18 +97,20 @@ class RobotConfig:
 
 @dc.dataclass
 class ObjectConfig:
-    """The object: mesh -> `up` -> `rpy_deg` -> `yaw_deg`, scaled, then set on the table (lowest
-    point on the table top, footprint centred at `xy`)."""
+    """The object: mesh -> `up` -> `rpy_deg` -> `yaw_deg`, scaled, then set on its support
+    (lowest point on the table top, the box's top or the floor; footprint centred at `xy`)."""
     #: teapot (Newell's patches), bunny (models/stanford_bunny.ply), dragon
-    #: (models/stanford_dragon.ply) or mesh (the file `mesh`)
+    #: (models/stanford_dragon.ply), mesh (the file `mesh`), or one built from primitives
+    #: (world/shapes.py): chair (an office chair), suitcase, humanoid (NAO's size)
     kind: str = "teapot"
     mesh: Optional[str] = None  #: OBJ/PLY/STL/OFF/glTF/GLB path (relative to the scenario file) for kind mesh
     #: the longest side in metres of the mesh's own bounding box; None: the kind's (teapot 0.40,
-    #: bunny 0.467 and dragon 0.511 = the papers' objects, mesh 0.40). A kind changed by a
+    #: bunny 0.467 and dragon 0.511 = the papers' objects, mesh 0.40, chair 0.90, suitcase 0.90,
+    #: humanoid 0.58). A kind changed by a
     #: setting without a size takes the new kind's default
     size: Optional[float] = None
     scale: Optional[float] = None  #: mesh units -> metres instead of a size (size must then be None)
-    xy: list[float] = dc.field(default_factory=lambda: [0.0, 0.0])  #: footprint centre on the table
+    xy: list[float] = dc.field(default_factory=lambda: [0.0, 0.0])  #: footprint centre on the support
     #: the mesh's up axis (x, y, z, -x, -y, -z), turned to +z cyclically (x -> y -> z -> x), a
     #: negative axis then turned 180 deg about x; None: the kind's (bunny and dragon y, else z)
     up: Optional[str] = None
@@ -127,26 +147,54 @@ class ObjectConfig:
 
 @dc.dataclass
 class SceneConfig:
-    """The table, the object on it, the bounding box W_box around what is reconstructed, and
-    the known obstacles."""
+    """What the object stands on (a table, a box or the floor), the object, the bounding box
+    W_box around what is reconstructed, and the known obstacles."""
+    #: table (table_size at table_height), box (box_size on the floor) or floor
+    support: str = "table"
     table_size: list[float] = dc.field(default_factory=lambda: [0.8, 1.0])  #: x, y (m)
     table_height: float = 0.43  #: top surface z (m)
-    bbox_min: list[float] = dc.field(default_factory=lambda: [-0.4, -0.4, 0.43])  #: W_box (m)
-    bbox_max: list[float] = dc.field(default_factory=lambda: [0.4, 0.4, 0.95])
-    #: none, or chairs (nine chairs around the table, Vasquez-Gomez et al. 2017 Fig. 13)
+    box_size: list[float] = dc.field(default_factory=lambda: [0.35, 0.35, 0.30])  #: support box: x, y, height (m)
+    #: the support box is reconstructed with the object (part of the unknown object, in W_box,
+    #: its surface in the ground truth) instead of being a known obstacle
+    box_reconstructed: bool = False
+    #: W_box (m); null: around what is reconstructed, grown by bbox_margin on x, y and top,
+    #: its bottom on the surface it stands on
+    bbox_min: Optional[list[float]] = dc.field(default_factory=lambda: [-0.4, -0.4, 0.43])
+    bbox_max: Optional[list[float]] = dc.field(default_factory=lambda: [0.4, 0.4, 0.95])
+    bbox_margin: float = 0.05  #: m, for an automatic W_box
+    #: none; chairs (nine chairs around the table, Vasquez-Gomez et al. 2017 Fig. 13); room (the
+    #: walls of a 4.8 m room and its furniture, as Fig. 3); obstacles (boxes around the object, as Fig. 19)
     clutter: str = "none"
     object: ObjectConfig = dc.field(default_factory=ObjectConfig)  #: the object reconstructed
     gt_points: int = 40000  #: ground-truth surface samples for coverage
 
+    def support_top(self) -> float:
+        """The z the object's lowest point rests on."""
+        return {"table": self.table_height, "box": self.box_size[2], "floor": 0.0}[self.support]
+
+    def base_z(self) -> float:
+        """The z of the surface under what is reconstructed (the support box's top, or the floor
+        when the box is reconstructed with the object)."""
+        return 0.0 if self.support == "box" and self.box_reconstructed else self.support_top()
+
     def check(self, at: str = "scene") -> None:
-        require(len(self.bbox_min) == 3 and len(self.bbox_max) == 3,
-                f"{at}.bbox_min and {at}.bbox_max must have 3 numbers each")
-        require(all(a < b for a, b in zip(self.bbox_min, self.bbox_max)),
-                f"scene bounding box is empty: bbox_min {self.bbox_min} must be below bbox_max {self.bbox_max}")
+        require(self.support in SUPPORTS, f"{at}.support must be one of {', '.join(SUPPORTS)}, got {self.support!r}")
+        require((self.bbox_min is None) == (self.bbox_max is None),
+                f"{at}.bbox_min and {at}.bbox_max must both be set or both null (automatic)")
+        if self.bbox_min is not None:
+            require(len(self.bbox_min) == 3 and len(self.bbox_max) == 3,
+                    f"{at}.bbox_min and {at}.bbox_max must have 3 numbers each")
+            require(all(a < b for a, b in zip(self.bbox_min, self.bbox_max)),
+                    f"scene bounding box is empty: bbox_min {self.bbox_min} must be below bbox_max {self.bbox_max}")
+        require(finite(self.bbox_margin) and self.bbox_margin >= 0, f"{at}.bbox_margin must be >= 0 m")
         require(len(self.table_size) == 2 and all(v > 0 for v in self.table_size),
                 f"{at}.table_size must be two positive numbers, got {self.table_size}")
         require(self.table_height > 0, f"{at}.table_height must be > 0, got {self.table_height}")
-        require(self.clutter in ("none", "chairs"), f"{at}.clutter must be 'none' or 'chairs', got {self.clutter!r}")
+        require(len(self.box_size) == 3 and all(finite(v) and v > 0 for v in self.box_size),
+                f"{at}.box_size must be three positive numbers, got {self.box_size}")
+        require(not self.box_reconstructed or self.support == "box",
+                f"{at}.box_reconstructed needs {at}.support box, got {self.support!r}")
+        require(self.clutter in CLUTTERS, f"{at}.clutter must be one of {', '.join(CLUTTERS)}, got {self.clutter!r}")
         require(self.gt_points >= 100, f"{at}.gt_points must be >= 100, got {self.gt_points}")
         self.object.check(f"{at}.object")
 
@@ -199,6 +247,10 @@ class SensorConfig:
     z_far: Optional[float] = None
     noise_a: Optional[float] = None  #: axial noise sigma_z = noise_a + noise_b (z - 0.4)^2 (m)
     noise_b: Optional[float] = None
+    #: the planner's model of the sensor casts one ray per block of model_binning x model_binning
+    #: pixels times planner.evaluator.stride (the Kinect's 3: 213 x 160 model pixels about
+    #: 0.27 deg apart, as the SR4000's 0.25 deg; 1: every pixel)
+    model_binning: Optional[int] = None
     #: structured-light faults (shadows, disparity steps, lateral noise, grazing dropouts);
     #: None: the preset's (the Kinect's; none for the SR4000)
     faults: Optional[DepthFaults] = None
@@ -233,6 +285,7 @@ class SensorConfig:
                 f"{at} field of view must be in (0, 180) deg, got {rs.fov_x_deg}x{rs.fov_y_deg}")
         require(0 < rs.z_near < rs.z_far, f"{at} range needs 0 < z_near < z_far, got {rs.z_near}..{rs.z_far}")
         require(rs.noise_a >= 0 and rs.noise_b >= 0, f"{at}.noise_a/noise_b must be >= 0")
+        require(rs.model_binning >= 1, f"{at}.model_binning must be >= 1, got {rs.model_binning}")
         rs.faults.check(f"{at}.faults")
 
 
@@ -275,7 +328,10 @@ class MapperConfig:
     clamp_max: float = 0.971
     free_below: float = 0.45  #: class thresholds: free < 0.45 <= unknown <= 0.55 < occupied
     occupied_above: float = 0.55
-    table_clearance: float = 0.005  #: points closer than this to the table top are not object points
+    #: points closer than this to the surface the object stands on are not object points (m);
+    #: None: the sensor's depth error at 1.5 m (3 sigma_z and half a disparity step), at least
+    #: 5 mm: 5 mm for the SR4000, 14 mm for the Kinect
+    table_clearance: Optional[float] = None
 
     def check(self, scene: SceneConfig, at: str = "mapper") -> None:
         require(self.voxel_size > 0, f"{at}.voxel_size must be > 0, got {self.voxel_size}")
@@ -615,8 +671,8 @@ class PlannerConfig:
             require(s.views >= 2, f"{at}.strategy.views must be >= 2, got {s.views}")
             require(s.range is None or (finite(s.range) and s.range > 0),
                     f"{at}.strategy.range must be > 0 (m) or null, got {s.range}")
-            require(s.height is None or (finite(s.height) and s.height > scene.table_height),
-                    f"{at}.strategy.height must be above the table top ({scene.table_height} m) or null, "
+            require(s.height is None or (finite(s.height) and s.height > scene.base_z()),
+                    f"{at}.strategy.height must be above the object's support ({scene.base_z()} m) or null, "
                     f"got {s.height}")
             if s.range is not None:
                 half = [(b - a) / 2 for a, b in zip(scene.bbox_min, scene.bbox_max)]
@@ -715,6 +771,11 @@ class Scenario:
         """Raises ScenarioError naming the first impossible value by its nested path."""
         self.robot.check()
         self.scene.check()
+        if self.mapper.table_clearance is None:
+            self.mapper.table_clearance = support_clearance(self.sensor)
+        if self.scene.bbox_min is None:  # W_box around what is reconstructed
+            from ..world.objects import automatic_wbox
+            self.scene.bbox_min, self.scene.bbox_max = automatic_wbox(self)
         self.sensor.check()
         self.noise.check()
         self.mapper.check(self.scene)

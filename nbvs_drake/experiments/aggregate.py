@@ -90,9 +90,23 @@ def derived(run: dict) -> dict:
     scans = s.get("scans") or 0
     voxel = _num(_get(sc, "mapper.voxel_size")) or 0.02
     hrt_a = (_num(_get(sc, "planner.evaluator.a")) or 0) if _get(sc, "planner.evaluator") == "Hrt" else 0
+    nodes = [p["path_nodes"] for p in plans if p.get("path_nodes")]
+    controls = [p["n_controls"] for p in plans if p.get("n_controls") is not None]
+    scans_recs = [r.get("scan") or {} for r in recs]
+    # the registration and the map update of each sensing scan, and of the localisation frames
+    reg_s = sum((sc_.get("register_s") or 0.0) + (sc_.get("update_s") or 0.0)
+                + sum(f.get("register_s") or 0.0 for f in sc_.get("frames") or []) for sc_ in scans_recs)
+    recovery = sum((r.get("plan") or {}).get("recovery_s") or 0.0 for r in recs)
     return {
         "plans": len(plans),
         "views_evaluated": views,
+        # the vertices of each executed path in its search (a steering path: its 2 ends), and its controls
+        "nodes_in_path": float(np.mean(nodes)) if nodes else None,
+        "controls_in_path": float(np.mean(controls)) if controls else None,
+        "stopped_unknown": 1.0 if s.get("stop_reason") == "unknown_below_threshold" else 0.0,
+        "registration_s_per_iteration": reg_s / len(scans_recs) if scans_recs else None,
+        # the NBV plans with the verification and recovery planning that followed them
+        "planning_all_s_per_iteration": (times.get("plan", 0.0) + recovery) / len(plans) if plans else None,
         "collided": 1.0 if (s.get("collisions") or 0) > 0 else 0.0,
         "distance_per_scan": s["distance"] / scans if scans and s.get("distance") is not None else None,
         "trajectory_length_mean": float(np.mean(rho)) if rho else None,

@@ -159,6 +159,26 @@ class OccupancyMap:
     def unknown_count(self) -> int:
         return int(np.count_nonzero(self.unknown_mask()))
 
+    def reachable_unknown_count(self) -> int:
+        """Unknown voxels a view could still reach: those joined (face to face, through unknown
+        voxels) to a free voxel or to the map's sides or top. The unknown voxels walled in by
+        occupied ones and the surface the object stands on (the inside of a solid seat, of a box)
+        are left out: no view can see them, so a stop on few unknown voxels
+        (mission.stop_unknown_voxels) does not wait for them."""
+        from scipy import ndimage
+        c = self.classes()
+        unknown = c == UNKNOWN
+        labels, n = ndimage.label(unknown)
+        if n == 0:
+            return 0
+        seeds = ndimage.binary_dilation(c == FREE) & unknown
+        for face in (np.s_[0], np.s_[-1]):
+            seeds[face] |= unknown[face]
+            seeds[:, face] |= unknown[:, face]
+        seeds[:, :, -1] |= unknown[:, :, -1]
+        reached = np.unique(labels[seeds])
+        return int(np.count_nonzero(np.isin(labels, reached[reached > 0])))
+
     def in_wbox(self) -> np.ndarray:
         """Voxels whose centre lies in W_box (the map also covers a margin around it)."""
         cen = self.spec.centers()

@@ -34,7 +34,19 @@ from ..world.pose import Correction, rot_z
 @dc.dataclass
 class RegistrationConfig:
     region_margin_xy: float = 0.5  #: m around W_box in x and y
+    #: m around W_box in a room or among obstacles (scene.clutter room, obstacles): the known
+    #: walls and furniture are the landmarks, as the table's edges are on a table
+    region_margin_known: float = 2.2
+    #: the model's and the scan's downsampling beyond `near` (m): the walls and furniture of a
+    #: room are big planes, a few hundred points each fix them
+    far_voxel: float = 0.1
+    #: (x_min, y_min, x_max, y_max): W_box grown by region_margin_xy, within which points are
+    #: kept at model_voxel; None: everywhere (no room around). Set by `registration_config`
+    near: tuple | None = None
     region_below_table: float = 0.08  #: m below the table top (its edges and legs' tops)
+    #: m above the floor where the object stands on it: the floor's plane fixes nothing of a
+    #: planar correction, and its returns would be most of the region's points
+    region_above_floor: float = 0.02
     model_voxel: float = 0.01  #: downsampling of the accumulated model (m)
     #: coarse-to-fine ICP: (downsampling voxel, max correspondence distance) per stage (m)
     stages: tuple = ((0.03, 0.15), (0.02, 0.06), (0.01, 0.02))
@@ -56,6 +68,14 @@ class RegistrationConfig:
     grid_major: tuple = (-2.0, -1.5, -1.0, -0.5, 0.0, 0.5, 1.0, 1.5, 2.0)
     grid_minor: tuple = (-1.5, 0.0, 1.5)
     refine_best: int = 4  #: grid starts refined to the last stage
+    #: at most this many scan points per stage (and for the free-space and see-through checks),
+    #: evenly thinned after the stage's downsampling: in a room a Kinect scan keeps tens of
+    #: thousands of points at 1 cm, where the fit needs a few thousand (the table scenes' scans
+    #: stay below these)
+    max_points: int = 8000
+    #: the first (coarse) stage, which every grid start runs: at most this many
+    max_coarse_points: int = 1500
+    max_view_points: int = 20000  #: the whole scan's points the free-space and see-through checks use
 
 
 #: localisation.fine_stage: the last stage (scan voxel, correspondence distance, m) and the
@@ -64,19 +84,30 @@ FINE_STAGE = (0.01, 0.008)
 FINE_SIGMA = 0.002
 
 
-def registration_config(loc: LocalisationConfig) -> RegistrationConfig:
-    """The registration's settings of the localisation section (residual cap, fine stage)."""
+def registration_config(loc: LocalisationConfig, scene: SceneConfig | None = None) -> RegistrationConfig:
+    """The registration's settings of the localisation section (residual cap, fine stage)
+    and of the scene (in a room or among obstacles: the region reaches the known walls and
+    furniture, kept coarser beyond the object's surroundings)."""
     cfg = RegistrationConfig(residual_cap=loc.cap())
+    if scene is not None and scene.clutter in ("room", "obstacles"):
+        m = cfg.region_margin_xy
+        cfg = dc.replace(cfg, near=(scene.bbox_min[0] - m, scene.bbox_min[1] - m, scene.bbox_max[0] + m,
+                                    scene.bbox_max[1] + m))
     if loc.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
     return cfg
 
 
 def region_mask(scene: SceneConfig, P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """The scan points of the registration region: W_box grown by region_margin_xy in x and y
+    (region_margin_known in a room or among obstacles),
+    from just below a raised support's top (its edges; region_below_table) or just above the
+    floor (region_above_floor) up to W_box's top."""
     s = scene
-    lo = np.array([s.bbox_min[0] - cfg.region_margin_xy, s.bbox_min[1] - cfg.region_margin_xy,
-                   s.table_height - cfg.region_below_table])
-    hi = np.array([s.bbox_max[0] + cfg.region_margin_xy, s.bbox_max[1] + cfg.region_margin_xy, s.bbox_max[2]])
+    z0 = s.base_z() + cfg.region_above_floor if s.base_z() == 0.0 else s.base_z() - cfg.region_below_table
+    m = cfg.region_margin_known if cfg.near is not None else cfg.region_margin_xy
+    lo = np.array([s.bbox_min[0] - m, s.bbox_min[1] - m, z0])
+    hi = np.array([s.bbox_max[0] + m, s.bbox_max[1] + m, s.bbox_max[2]])
     return np.all((P >= lo) & (P <= hi), axis=1)
 
 
@@ -100,10 +131,27 @@ class RegistrationModel:
         return self
 
     def merged(self, P: np.ndarray, cfg: RegistrationConfig) -> "RegistrationModel":
+        """The model with the points P merged (`model_index`: downsampled, far ones coarser)."""
         P = np.asarray(P, np.float32)
         allp = np.concatenate([self.points, P])
-        idx = voxel_downsample_index(allp, cfg.model_voxel)
+        idx = model_index(allp, cfg)
         return RegistrationModel(allp[idx], np.concatenate([self.normals, np.zeros_like(P)])[idx])
+
+
+def model_index(P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """Indices of the model points kept: one per model_voxel, and beyond `cfg.near` (a room's
+    walls and furniture) one per far_voxel."""
+    if cfg.near is None:
+        return voxel_downsample_index(P, cfg.model_voxel)
+    near = _near_mask(P, cfg.near)
+    i_near, i_far = np.flatnonzero(near), np.flatnonzero(~near)
+    return np.sort(np.concatenate([i_near[voxel_downsample_index(P[i_near], cfg.model_voxel)],
+                                   i_far[voxel_downsample_index(P[i_far], cfg.far_voxel)]]))
+
+
+def _near_mask(P: np.ndarray, near: tuple) -> np.ndarray:
+    x0, y0, x1, y1 = near
+    return (P[:, 0] >= x0) & (P[:, 0] <= x1) & (P[:, 1] >= y0) & (P[:, 1] <= y1)
 
 
 def box_surface_points(center, size, yaw: float, spacing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -141,7 +189,7 @@ def environment_model(scene: SceneConfig, cfg: RegistrationConfig) -> Registrati
     P, N = np.concatenate([f[0] for f in faces]), np.concatenate([f[1] for f in faces])
     keep = region_mask(scene, P, cfg)
     P, N = P[keep], N[keep]
-    idx = voxel_downsample_index(P, cfg.model_voxel)
+    idx = model_index(P, cfg)
     return RegistrationModel(P[idx], N[idx])
 
 
@@ -268,6 +316,25 @@ def _normals(P: np.ndarray, radius: float) -> np.ndarray:
     return np.asarray(pc.normals)
 
 
+def _stage_points(P: np.ndarray, voxel: float, cfg: RegistrationConfig, dist: float) -> np.ndarray:
+    """The scan downsampled at `voxel` for a stage of correspondence distance `dist`; beyond
+    `cfg.near`, at far_voxel, and only in the stages that look that far for a match (the
+    model is that sparse there)."""
+    if cfg.near is None:
+        return _downsample(P, voxel)
+    near = _near_mask(P, cfg.near)
+    if dist < cfg.far_voxel:
+        return _downsample(P[near], voxel)
+    return np.concatenate([_downsample(P[near], voxel), _downsample(P[~near], max(voxel, cfg.far_voxel))])
+
+
+def _thin(P: np.ndarray, n: int) -> np.ndarray:
+    """At most n of the points, evenly spaced in their order (all when there are fewer)."""
+    if len(P) <= n:
+        return P
+    return P[np.linspace(0, len(P) - 1, n).astype(np.int64)]
+
+
 def _downsample(P: np.ndarray, voxel: float) -> np.ndarray:
     import open3d as o3d
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(P, float)))
@@ -283,22 +350,25 @@ class PlanarIcp:
                  view: ScanView | None = None):
         from scipy.spatial import cKDTree
         self.cfg, self.free_at, self.view = cfg, free_at, view
-        self.view_pts = _downsample(view.points, cfg.model_voxel) if view is not None and len(view.points) else None
+        self.view_pts = (_thin(_stage_points(view.points, cfg.model_voxel, cfg, np.inf), cfg.max_view_points)
+                         if view is not None and len(view.points) else None)
         self.Q = np.asarray(model.points, float)
         self.NQ = _normals(self.Q, 2.5 * cfg.model_voxel)
         known = np.any(model.normals != 0, axis=1)
         self.NQ[known] = model.normals[known]
         self.tree = cKDTree(self.Q)
         self.Cinv = np.linalg.inv(prior_cov)
-        self.fine = _downsample(scan_pts, cfg.model_voxel)
-        self.coarse = {v: (_downsample(scan_pts, v) if v > cfg.model_voxel else self.fine) for v, _ in cfg.stages}
+        self.fine = _thin(_stage_points(scan_pts, cfg.model_voxel, cfg, 0.0), cfg.max_points)
+        self.coarse = {(v, d): (_thin(_stage_points(scan_pts, v, cfg, d), cfg.max_coarse_points if i == 0 else cfg.max_points)
+                                if v > cfg.model_voxel or d >= cfg.far_voxel else self.fine)
+                       for i, (v, d) in enumerate(cfg.stages)}
 
     def refine(self, xi, stages=None):
         cfg, Q, NQ, Cinv = self.cfg, self.Q, self.NQ, self.Cinv
         s2 = cfg.point_sigma ** 2
         xi = np.array(xi, float)
         for voxel, dist in (cfg.stages if stages is None else stages):
-            P = self.coarse[voxel]
+            P = self.coarse[voxel, dist]
             for _ in range(cfg.max_iterations):
                 X = Correction(*xi).apply_points(P)
                 d, j = self.tree.query(X, distance_upper_bound=dist)

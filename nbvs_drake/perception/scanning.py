@@ -59,12 +59,17 @@ class ScanRenderer:
         noise = self.camera.noise
         return np.array(self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data)[:, :, 0]
 
-    def scan(self, q) -> Scan:
+    def organised_cloud(self, q) -> np.ndarray:
+        """The (3, w h) point cloud of the state q's image, row by row (no return: NaN, +-inf)."""
         q = np.asarray(q, float)
         self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))
         self.diagram.get_input_port(1).FixValue(self.context, q)
         ctx_pc = self.to_pc.GetMyContextFromRoot(self.context)
-        pts = clean_scan(self.to_pc.point_cloud_output_port().Eval(ctx_pc).xyzs())
+        return np.array(self.to_pc.point_cloud_output_port().Eval(ctx_pc).xyzs())
+
+    def scan(self, q) -> Scan:
+        q = np.asarray(q, float)
+        pts = clean_scan(self.organised_cloud(q))
         noise = self.camera.noise
         depth = self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data
         X = self.kin.camera_poses(q)[0]

@@ -49,6 +49,8 @@ class PlanResult:
     times: dict = dc.field(default_factory=dict)  #: seconds per stage
     #: the candidates that reached motion planning with a path: (state, utility) each
     candidates: list = dc.field(default_factory=list)
+    #: the path's vertices in the search that found it (motion_planner.FoundPath.nodes; 0: none)
+    path_nodes: int = 0
 
     def to_json(self) -> dict:
         d = {"status": self.status, "utility": self.utility, "factors": self.factors,
@@ -56,6 +58,8 @@ class PlanResult:
         if self.q_goal is not None:
             d["q_goal"] = [round(float(v), 6) for v in self.q_goal]
             d["n_controls"] = int(len(self.controls))
+            if self.path_nodes:
+                d["path_nodes"] = int(self.path_nodes)
             step = max(1, len(self.states) // 60)
             path = np.concatenate([self.states[::step], self.states[-1:]])
             d["path"] = [[round(float(v), 4) for v in s] for s in path]

@@ -127,6 +127,17 @@ def undecided_free(asks: dict, obstacles: ObstacleModel) -> dict:
     return ok
 
 
+class FoundPath(tuple):
+    """A path found: (kind, controls, states), and `nodes`: its vertices in the search that
+    found it (a tree's or the roadmap's, its two ends included; a steering path's 2, a detour's
+    3: its waypoint)."""
+
+    def __new__(cls, kind: str, controls, states, nodes: int | None = None):
+        out = super().__new__(cls, (kind, controls, states))
+        out.nodes = int(nodes) if nodes is not None else (3 if kind == "detour" else 2)
+        return out
+
+
 class MotionPlanner:
     """Paths between states against a plan's obstacles (`ObstacleModel`)."""
 
@@ -239,7 +250,7 @@ class MotionPlanner:
                               lambda s: self.path_free(s, obstacles), self.kin.clip_arm, rng,
                               max_nodes=p.rrt_max_nodes(), step=p.tree_step)
             if res.found:
-                return "rrt", res.controls, res.states
+                return FoundPath("rrt", res.controls, res.states, res.path_nodes)
         return None
 
     def _detours(self, q0: np.ndarray, q1: np.ndarray):
@@ -290,7 +301,7 @@ class MotionPlanner:
         for kind, controls in sequences:
             states = rollout(q0, controls, self.sc.robot.control_dt)
             if self.path_free(states, obstacles):
-                return kind, controls, states
+                return FoundPath(kind, controls, states)
         return None
 
     @property
@@ -331,7 +342,7 @@ class MotionPlanner:
             lengths = [path_length(o[2], p.weights) for o in options]
             for j in np.argsort(lengths, kind="stable"):
                 if self.path_free(options[j][2], obstacles):
-                    out[i], length[i] = options[j], lengths[j]
+                    out[i], length[i] = FoundPath(*options[j]), lengths[j]
                     break
         # the roadmap for every goal whose turn-drive-turn with the arm moving alongside (the
         # shortest steering path; or an arc) is blocked: its path around may be shorter
@@ -345,7 +356,7 @@ class MotionPlanner:
                 if r is None:
                     continue
                 if path_length(r[1], p.weights) < length[i] and self.path_free(r[1], obstacles):
-                    out[i] = ("roadmap", r[0], r[1])
+                    out[i] = FoundPath("roadmap", r[0], r[1], r[2])
         for i in range(len(goals)):
             if out[i] is None:
                 out[i] = self._first_free(q0, self._detours(q0, goals[i]), obstacles)

@@ -37,7 +37,7 @@ from .motion_planner import reached_goal
 CEILING_POSES = 2000
 CEILING_SAMPLES = 40000
 COVER_RADIUS = 0.003  #: a sample is covered when a return lies this close (the runs' 3 mm coverage)
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 def _box_triangles(center, size, yaw):
@@ -91,7 +91,7 @@ def reference_samples(sc: Scenario, mesh: ObjectMesh, n: int = CEILING_SAMPLES) 
     """A fixed draw of ground-truth samples (not the run's seed), without the band at the
     table that no scan keeps (as `objects.ground_truth_points`)."""
     pts = sample_surface(mesh, 2 * n, np.random.default_rng([29, n]))
-    return pts[pts[:, 2] >= sc.scene.table_height + sc.mapper.table_clearance][:n]
+    return pts[pts[:, 2] >= sc.scene.base_z() + sc.mapper.table_clearance][:n]
 
 
 def ceiling_poses(sc: Scenario, kin: RobotKinematics, mesh_obj: str | None, n: int, rng) -> np.ndarray:
@@ -127,7 +127,7 @@ def cache_dir() -> Path:
 
 def coverage_ceiling(sc: Scenario, kin: RobotKinematics, mesh: ObjectMesh, mesh_obj: str | None = None,
                      n_poses: int = CEILING_POSES, use_cache: bool = True) -> dict:
-    """{"ceiling", "poses", "samples", "seconds", "cached"}: the share of the ground-truth
+    """{"ceiling", "ceiling_1cm", "poses", "samples", "seconds", "cached"}: the share of the ground-truth
     surface seeable from `n_poses` reachable collision-free poses (module docstring)."""
     path = cache_dir() / f"{_cache_key(sc, mesh, n_poses)}.json"
     if use_cache and path.is_file():
@@ -144,12 +144,17 @@ def coverage_ceiling(sc: Scenario, kin: RobotKinematics, mesh: ObjectMesh, mesh_
     else:
         q = ceiling_poses(sc, kin, mesh_obj, n_poses, np.random.default_rng([31, n_poses]))
     gt = reference_samples(sc, mesh)
-    truth = TruthScene(sc, mesh)
+    # one ray per model pixel (sensor.model_binning: the Kinect's 3 x 3 pixels, rays 4 mm apart
+    # at 1 m; the SR4000's every pixel)
+    truth = TruthScene(sc, mesh, stride=resolve_sensor(sc.sensor).model_binning)
     covered = np.zeros(len(gt), bool)
+    covered_1cm = np.zeros(len(gt), bool)  # the same at 1 cm (coarse maps: scene.mapper.voxel_size 3 cm)
     for X in kin.camera_poses(q):
-        covered[newly_covered(truth.object_hits(X), gt, np.flatnonzero(~covered))] = True
-    out = {"ceiling": round(float(covered.mean()), 6), "poses": int(len(q)), "samples": int(len(gt)),
-           "seconds": round(time.perf_counter() - t, 2)}
+        hits = truth.object_hits(X)
+        covered[newly_covered(hits, gt, np.flatnonzero(~covered))] = True
+        covered_1cm[newly_covered(hits, gt, np.flatnonzero(~covered_1cm), 0.01)] = True
+    out = {"ceiling": round(float(covered.mean()), 6), "ceiling_1cm": round(float(covered_1cm.mean()), 6),
+           "poses": int(len(q)), "samples": int(len(gt)), "seconds": round(time.perf_counter() - t, 2)}
     if use_cache:
         from ..files import write_atomic
         try:
@@ -220,6 +225,6 @@ class OraclePlanner:
                 g = fine_of[int(i)] / max(len(self.gt), 1)
                 return PlanResult("ok", reached_goal(self.sc, cand[i], states), controls, states, kind, float(g), {
                     "pos": 1.0, "reg": 1.0, "info": float(g), "metric": "oracle", "dist": 1.0,
-                    "rho": float(path_length(states, p.weights)), "du": float(g)}, stages, times)
+                    "rho": float(path_length(states, p.weights)), "du": float(g)}, stages, times, path_nodes=f.nodes)
         times["motion_planning_s"] = time.perf_counter() - t
         return PlanResult("no_path", stages=stages, times=times)

@@ -109,7 +109,7 @@ class RandomSamplingPlanner:
                         "pos": 1.0, "reg": 1.0, "info": float(info[i]), "metric": p.metric, "dist": float(dist),
                         "rho": float(rho), "un_o": int(un[i]), "un_touched": int(un[i] + post[i]), "oc_o": int(oc[i]),
                         "overlap": float(overlap[i]),
-                        "un_total": int(un_total), "du": float(du)}))
+                        "un_total": int(un_total), "du": float(du)}, path_nodes=found.nodes))
                 yield reachable, len(batch)
 
         best = select_best(batches(), self.utility, request, obstacles, un_total, stages, times)

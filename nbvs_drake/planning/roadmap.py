@@ -242,7 +242,7 @@ class Roadmap:
 
     # ------------------------------------------------------------------ the query
     def query(self, q_start: np.ndarray, goals: np.ndarray, collision, path_free_py, rng: np.random.Generator):
-        """Paths from q_start to each of goals (K, 8): a list of (controls, states) or None,
+        """Paths from q_start to each of goals (K, 8): a list of (controls, states, nodes: the roadmap vertices it runs through) or None,
         and the QueryStats. collision: the plan's CollisionModel (with its certificate);
         path_free_py(states) -> bool: the motion planner's check of a path from the start."""
         st = QueryStats()
@@ -287,7 +287,7 @@ class Roadmap:
                     left.append(i)
                     continue
                 ch = self._shortcut(ch, collision, cache, st)
-                out[i] = self._controls(self._smooth(self.V[ch], collision, st))
+                out[i] = (*self._controls(self._smooth(self.V[ch], collision, st)), len(ch))
             self._truncate(n_perm)
             todo = np.array(left, np.int64)
         st.reached = sum(r is not None for r in out)

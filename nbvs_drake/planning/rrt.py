@@ -184,6 +184,7 @@ class RRTResult:
     states: np.ndarray | None = None
     vertices: int = 0
     iterations: int = 0
+    path_nodes: int = 0  #: the vertices of the trees the path runs through (its two ends included)
 
 
 def rrt_ext_ext(q_start: np.ndarray, q_goal: np.ndarray, rc: RobotConfig, w: np.ndarray,
@@ -213,8 +214,8 @@ def rrt_ext_ext(q_start: np.ndarray, q_goal: np.ndarray, rc: RobotConfig, w: np.
             if weighted_dist(tb.q[i_b][None], ta.q[ia], w)[0] <= connect_tol:
                 res = _join(ta, ia, tb, i_b, a_is_start, rc, path_free)
                 if res is not None:
-                    controls, states = res
-                    return RRTResult(True, controls, states, ta.n + tb.n, it)
+                    controls, states, nodes = res
+                    return RRTResult(True, controls, states, ta.n + tb.n, it, nodes)
         ta, tb, a_is_start = tb, ta, not a_is_start
     return RRTResult(False, vertices=ta.n + tb.n, iterations=it)
 
@@ -233,4 +234,4 @@ def _join(ta: Tree, ia: int, tb: Tree, ib: int, a_is_start: bool, rc: RobotConfi
         parts.append(controls)
         q = states[-1]
     controls = np.concatenate(parts)
-    return controls, rollout(q_start, controls, rc.control_dt)
+    return controls, rollout(q_start, controls, rc.control_dt), len(s_tree.path_to(s_i)) + len(chain)

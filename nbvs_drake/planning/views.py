@@ -32,11 +32,15 @@ class ViewEvaluator:
         self.kin = kin
         self.near_unknown_blinds = bool(near_unknown_blinds)
         self.sensor = sc.sensor
-        self.stride = stride or sc.planner.evaluator.stride
+        #: pixels per ray (side): `stride` as given, else planner.evaluator.stride model pixels
+        #: of sensor.model_binning pixels each
+        binning = resolve_sensor(sc.sensor).model_binning
+        self.stride = stride or sc.planner.evaluator.stride * binning
         self.hrt_a = sc.planner.hrt_a() if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
         #: planner.coarse_stride(): the first pass's rays of evaluate_ranked (None: off)
-        self.coarse_stride = sc.planner.coarse_stride() if sc.planner.coarse_stride() > self.stride else 0
+        coarse = sc.planner.coarse_stride() * binning
+        self.coarse_stride = coarse if coarse > self.stride else 0
         self.refine_views = sc.planner.refine_views()
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
         full, _, t_far = ray_directions(sc.sensor, 1)  # the outermost pixel centres bound every stride's rays

@@ -25,7 +25,7 @@ from ..perception.registration import (
 from ..world.motion import REGISTERED_SIGMA, ControlSequence
 from ..world.pose import EXACT_POSE_VAR, Correction
 from ..world.robot import RobotKinematics
-from ..world.sensor import clean_scan, no_return_rays, ray_directions
+from ..world.sensor import binned_cloud, clean_scan, no_return_rays, ray_directions
 from ..world.state import NQ
 from .messages import Belief, ControllerStatus, RegisteredScan
 
@@ -125,12 +125,14 @@ class Localisation(LeafSystem):
                  noise: NoiseConfig, kin: RobotKinematics, q0, dt: float, seed: int):
         super().__init__()
         self.config, self.scene, self.mapper, self.noise, self.seed = config, scene, mapper, noise, seed
-        self.reg_cfg = registration_config(config)
+        self.reg_cfg = registration_config(config, scene)
         vv = config.verified_views
         self._leg_turns = bool(vv is not None and vv.legs is not None and vv.legs.after_turns)
         self._solids = KnownSolids.of(scene)
         self._dirs = ray_directions(sensor, 1)[0]
-        self._z_far = resolve_sensor(sensor).z_far
+        rs = resolve_sensor(sensor)
+        self._z_far = rs.z_far
+        self._image_size, self._binning = (rs.width, rs.height), rs.model_binning
         q0 = np.asarray(q0, float)
         model0 = environment_model(scene, self.reg_cfg) if config.method == "icp" else RegistrationModel()
         mem = _Memory(Belief.exact(q0), 0, -1, model0, RegisteredScan())
@@ -168,6 +170,9 @@ class Localisation(LeafSystem):
         t_render = time.perf_counter() - t0
         k = mem.belief.scan + 1
         pts = clean_scan(cloud.xyzs())
+        # the registration works on the model's pixels (sensor.model_binning: one pixel per
+        # 3 x 3 block of the Kinect, as many returns as the SR4000 gives; the map takes them all)
+        reg_pts = pts if self._binning == 1 else clean_scan(binned_cloud(cloud.xyzs(), self._image_size, self._binning))
         free_rays = no_return_rays(self._depth.Eval(context).data, X_WC, self._dirs, self._z_far)
         t1 = time.perf_counter()
         icp = None
@@ -185,13 +190,14 @@ class Localisation(LeafSystem):
                 prior = prior + np.diag(np.square(REGISTERED_SIGMA))
             if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 omap: OccupancyMap = self._map.Eval(context)
-                icp = register_scan(pts[region_mask(self.scene, pts, self.reg_cfg)], mem.model, prior, self.reg_cfg,
-                                    free_at=functools.partial(omap.free_hits,
-                                                              table_clearance=self.mapper.table_clearance),
-                                    view=ScanView(X_WC[:3, 3], pts, self._solids))
+                icp = register_scan(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], mem.model, prior,
+                                    self.reg_cfg, free_at=functools.partial(omap.free_hits,
+                                                                            table_clearance=self.mapper.table_clearance),
+                                    view=ScanView(X_WC[:3, 3], reg_pts, self._solids))
                 if icp.applied:
                     corr = icp.correction
                     pts, free_rays, X_WC = corr.apply_points(pts), corr.apply_points(free_rays), corr.apply_pose(X_WC)
+                    reg_pts = corr.apply_points(reg_pts)
                     pending = np.zeros((3, 3))
                 elif not refine:
                     pending = prior
@@ -202,10 +208,10 @@ class Localisation(LeafSystem):
         t_register = time.perf_counter() - t1
         model = mem.model
         if integrate and (not check or icp.applied):
-            model = model.merged(pts[region_mask(self.scene, pts, self.reg_cfg)], self.reg_cfg)
+            model = model.merged(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], self.reg_cfg)
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
-                     icp=icp.to_json() if icp is not None else None)
+                     register_s=round(t_register, 4), icp=icp.to_json() if icp is not None else None)
         if check:  # a localisation frame: the belief moves on, the map and the scan count do not
             frame["check"] = check
             belief = Belief(mem.belief.scan, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, check)

@@ -98,7 +98,7 @@ class PlanReport(_Immutable):
     PlanResult's JSON (utility, factors, stages, times, path_kind, q_goal, n_controls, path,
     candidates); the belief the plan started from (believed_state: dead-reckoned,
     corrected_state: registered, start_sigma: its spread); plan_id and motion_sim_s of the
-    emitted plan. `status` "" and scan 0: no scan answered yet."""
+    emitted plan; recovery_s: the recovery planning since the previous scan. `status` "" and scan 0: no scan answered yet."""
     scan: int = 0
     status: str = ""
     stop_reason: str = ""
@@ -109,6 +109,9 @@ class PlanReport(_Immutable):
     start_sigma: list | None = None
     plan_id: int | None = None
     motion_sim_s: float | None = None
+    #: seconds the planner spent on the localisation frames between the previous scan and this
+    #: one (the verification and recovery planning that followed the previous plan)
+    recovery_s: float | None = None
 
     def to_json(self) -> dict:
         """The flat record of the iteration log ("plan" of iterations.jsonl, with scan and the
@@ -116,7 +119,7 @@ class PlanReport(_Immutable):
         d = {"scan": self.scan, **self.result}
         if self.status:
             d["status"] = self.status
-        for k in ("plan_s", "believed_state", "corrected_state", "start_sigma", "plan_id", "motion_sim_s"):
+        for k in ("plan_s", "believed_state", "corrected_state", "start_sigma", "plan_id", "motion_sim_s", "recovery_s"):
             v = getattr(self, k)
             if v is not None:
                 d[k] = v

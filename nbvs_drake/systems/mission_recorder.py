@@ -66,7 +66,7 @@ class MissionRecorder(LeafSystem):
         super().__init__()
         self.log = log
         self.gt = gt_points
-        self.thresholds = (0.003, 0.005, voxel)
+        self.thresholds = (0.003, 0.005, voxel, 0.01)
         self._map = self.DeclareAbstractInputPort("map", AbstractValue.Make(dummy_map))
         self._scan = self.DeclareAbstractInputPort("scan_report", AbstractValue.Make(ScanReport()))
         self._plan = self.DeclareAbstractInputPort("plan_report", AbstractValue.Make(PlanReport()))
@@ -129,8 +129,9 @@ class MissionRecorder(LeafSystem):
         rec = {
             "iteration": k,
             "t_sim": round(context.get_time(), 3),
-            "coverage": cov[0], "coverage_5mm": cov[1], "coverage_voxel": cov[2],
-            "unknown_voxels": counts["unknown"], "occupied_voxels": counts["occupied"],
+            "coverage": cov[0], "coverage_5mm": cov[1], "coverage_voxel": cov[2], "coverage_1cm": cov[3],
+            "unknown_voxels": counts["unknown"], "reachable_unknown_voxels": omap.reachable_unknown_count(),
+            "occupied_voxels": counts["occupied"],
             "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
             "object_points": int(len(omap.object_points)),
             "scan": self._with_frame_errors(scan.info),

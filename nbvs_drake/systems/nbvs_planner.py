@@ -20,7 +20,8 @@ class PlannerMemory:
     """Immutable planner state: the last plan, the scan it answered, the last report."""
 
     def __init__(self, controls: ControlSequence, planned_for_scan: int = 0, report: PlanReport | None = None,
-                 answered_frame: int = 0, target: np.ndarray | None = None, legs: tuple = ()):
+                 answered_frame: int = 0, target: np.ndarray | None = None, legs: tuple = (),
+                 recovery_s: float = 0.0):
         self.controls = controls
         self.planned_for_scan = planned_for_scan
         self.report = report or PlanReport()
@@ -29,6 +30,9 @@ class PlannerMemory:
         self.target = target
         #: mission.legs: the planned states where the legs still to go end (before the target)
         self.legs = legs
+        #: seconds spent answering localisation frames (corrections, legs, re-localisation views)
+        #: since the last scan's report
+        self.recovery_s = recovery_s
 
     def __deepcopy__(self, memo):
         return self
@@ -113,11 +117,12 @@ class NBVSPlanner(LeafSystem):
             return
         belief: Belief = self._belief.Eval(context)
         base = PlanReport(scan=k, believed_state=rounded_state(belief.dead_reckoned),
-                          corrected_state=rounded_state(belief.state))
+                          corrected_state=rounded_state(belief.state),
+                          recovery_s=round(mem.recovery_s, 4) if mem.recovery_s else None)
         mi = self.mission
         if k >= mi.max_scans:
             new = PlannerMemory(mem.controls, k, dc.replace(base, status="stop", stop_reason="max_scans"))
-        elif mi.stop_unknown_voxels and omap.unknown_count() < mi.stop_unknown_voxels:
+        elif mi.stop_unknown_voxels and omap.reachable_unknown_count() < mi.stop_unknown_voxels:
             new = PlannerMemory(mem.controls, k, dc.replace(base, status="stop", stop_reason="unknown_below_threshold"))
         else:
             rng = np.random.default_rng([self.seed, 1, k])
@@ -128,7 +133,8 @@ class NBVSPlanner(LeafSystem):
             sigma = None
             if np.any(cov != 0):  # the belief's spread the plan started from
                 sigma = [round(float(v), 5) for v in np.sqrt(np.maximum(np.diag(cov), 0.0))]
-            rep = PlanReport(k, res.status, "", res.to_json(), plan_s, base.believed_state, base.corrected_state, sigma)
+            rep = PlanReport(k, res.status, "", res.to_json(), plan_s, base.believed_state, base.corrected_state, sigma,
+                             recovery_s=base.recovery_s)
             info = res.factors.get("info", float("inf"))
             if res.status != "ok":
                 new = PlannerMemory(mem.controls, k, dc.replace(rep, stop_reason=STOP_REASONS[res.status]))
@@ -157,6 +163,7 @@ class NBVSPlanner(LeafSystem):
         without a path, the last plan stays (its frame is re-taken as the scan: the controller
         is idle, so the Localisation takes the next plan's end; here none comes, so the view is
         given up and the frame count reaches max_recoveries)."""
+        t0 = time.perf_counter()
         rng = np.random.default_rng([self.seed, 17, belief.frame])
         legs = mem.legs
         if belief.check == "relocalise":
@@ -179,7 +186,8 @@ class NBVSPlanner(LeafSystem):
         purpose = res.factors.get("purpose", "view")
         tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls, res.states,
                               "relocalise" if purpose == "stay" else purpose, mem.target)
-        return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target, legs)
+        return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target, legs,
+                             mem.recovery_s + time.perf_counter() - t0)
 
     def _first_leg(self, res: PlanResult, legs: tuple) -> tuple[PlanResult, tuple]:
         """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of

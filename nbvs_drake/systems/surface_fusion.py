@@ -45,9 +45,9 @@ class SurfaceFusion(LeafSystem):
         super().__init__()
         self.voxel = voxel
         s = scene
-        self._lo = np.array([s.bbox_min[0] - margin, s.bbox_min[1] - margin, s.table_height - margin])
+        self._lo = np.array([s.bbox_min[0] - margin, s.bbox_min[1] - margin, s.base_z() - margin])
         self._hi = np.array(s.bbox_max, float) + margin
-        self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.table_height + mapper.table_clearance])
+        self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.base_z() + mapper.table_clearance])
         self.crop_max = np.array(s.bbox_max, float)
         self._intr = intrinsics(sensor)
         self._z_far = resolve_sensor(sensor).z_far

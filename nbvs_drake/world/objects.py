@@ -14,13 +14,17 @@ import numpy as np
 from ..config import ObjectConfig, Scenario
 from ..errors import MeshError, ScenarioError
 from ..resources import model_path
+from .primitives import box
+from .shapes import SHAPES
 
 
 @dc.dataclass
 class ObjectMesh:
-    """A triangle mesh in the world frame (metres)."""
+    """A triangle mesh in the world frame (metres); `parts`: each triangle's convex part
+    (objects built from primitives), or None (one part: the collision model takes its hull)."""
     vertices: np.ndarray  # (V, 3) float64
     triangles: np.ndarray  # (T, 3) int32
+    parts: np.ndarray | None = None  # (T,) int32
 
     @property
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
@@ -35,7 +39,21 @@ class ObjectMesh:
             np.savetxt(f, self.vertex_normals(), fmt="vn %.6f %.6f %.6f")
             t = self.triangles + 1
             np.savetxt(f, np.repeat(t, 2, axis=1), fmt="f %d//%d %d//%d %d//%d")
+        for old in path.parent.glob(f"{path.stem}_part*.obj"):
+            old.unlink()
+        if self.parts is not None:
+            for k in np.unique(self.parts):
+                T = self.triangles[self.parts == k]
+                used, T = np.unique(T, return_inverse=True)
+                ObjectMesh(self.vertices[used], T.reshape(-1, 3).astype(np.int32)).write_obj(
+                    path.parent / f"{path.stem}_part{k:03d}.obj")
         return path
+
+    @staticmethod
+    def part_files(path: Path) -> list[Path]:
+        """The convex parts `write_obj` wrote beside `path` (empty: the mesh is one part)."""
+        path = Path(path)
+        return sorted(path.parent.glob(f"{path.stem}_part*.obj"))
 
     def vertex_normals(self) -> np.ndarray:
         """Area-weighted vertex normals (unit; +z where undefined)."""
@@ -213,11 +231,13 @@ def object_orientation(o: ObjectConfig) -> np.ndarray:
     return rpy_rotation(o.rpy_deg) @ up_rotation(object_up(o))
 
 
-def build_object(sc: Scenario) -> ObjectMesh:
+def build_object(sc: Scenario, check: bool = True) -> ObjectMesh:
     """The object of the scenario in the world frame: scaled (so that the longest side of
     the mesh's own bounding box is `size`, or by `scale`), turned so that its `up` axis
     points up, rotated by `rpy_deg` and then by `yaw_deg` about the vertical, its footprint
-    centred at `xy` and its lowest point on the table top. Raises if it leaves W_box."""
+    centred at `xy` and its lowest point on its support (scene.support_top()); with
+    scene.box_reconstructed, the support box joins it as one more part. Raises if it leaves
+    W_box (`check`)."""
     o = sc.scene.object
     if o.kind == "teapot":
         mesh = tessellate_teapot(o.tessellation)
@@ -225,6 +245,8 @@ def build_object(sc: Scenario) -> ObjectMesh:
         mesh = load_bunny()
     elif o.kind == "dragon":
         mesh = load_dragon()
+    elif o.kind in SHAPES:
+        mesh = ObjectMesh(*SHAPES[o.kind]())
     else:
         p = Path(o.mesh)
         if not p.is_absolute():
@@ -244,10 +266,37 @@ def build_object(sc: Scenario) -> ObjectMesh:
     V = V @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]).T
     lo, hi = V.min(axis=0), V.max(axis=0)
     centre = 0.5 * (lo + hi)
-    V += np.array([o.xy[0] - centre[0], o.xy[1] - centre[1], sc.scene.table_height - lo[2]])
-    out = ObjectMesh(V, mesh.triangles)
-    check_inside_bbox(out, sc)
+    V += np.array([o.xy[0] - centre[0], o.xy[1] - centre[1], sc.scene.support_top() - lo[2]])
+    out = ObjectMesh(V, mesh.triangles, mesh.parts)
+    if sc.scene.box_reconstructed:
+        out = with_support_box(out, sc.scene)
+    if check:
+        check_inside_bbox(out, sc)
     return out
+
+
+def support_box(scene) -> tuple[np.ndarray, np.ndarray]:
+    """The support box's (lo, hi) corners: box_size on the floor, centred under the object's xy."""
+    x, y = scene.object.xy
+    bx, by, bz = scene.box_size
+    return np.array([x - bx / 2, y - by / 2, 0.0]), np.array([x + bx / 2, y + by / 2, bz])
+
+
+def with_support_box(mesh: ObjectMesh, scene) -> ObjectMesh:
+    """`mesh` and the support box as one mesh (the box one more part)."""
+    V, T = box(*support_box(scene))
+    parts = mesh.parts if mesh.parts is not None else np.zeros(len(mesh.triangles), np.int32)
+    return ObjectMesh(np.concatenate([mesh.vertices, V]), np.concatenate([mesh.triangles, T + len(mesh.vertices)]),
+                      np.concatenate([parts, np.full(len(T), parts.max() + 1, np.int32)]).astype(np.int32))
+
+
+def automatic_wbox(sc: Scenario) -> tuple[list[float], list[float]]:
+    """W_box around what is reconstructed: its bounds grown by scene.bbox_margin on x, y and
+    top, the bottom on the surface it stands on (scene.base_z())."""
+    lo, hi = build_object(sc, check=False).bounds
+    m = sc.scene.bbox_margin
+    return ([round(float(lo[0] - m), 4), round(float(lo[1] - m), 4), sc.scene.base_z()],
+            [round(float(hi[0] + m), 4), round(float(hi[1] + m), 4), round(float(hi[2] + m), 4)])
 
 
 def check_inside_bbox(mesh: ObjectMesh, sc: Scenario, tol: float = 1e-6):
@@ -282,6 +331,6 @@ def ground_truth_points(mesh: ObjectMesh, sc: Scenario, rng: np.random.Generator
         rng = np.random.default_rng([sc.seed, 3])
     n = sc.scene.gt_points
     pts = sample_surface(mesh, 2 * n, rng)
-    keep = pts[:, 2] >= sc.scene.table_height + sc.mapper.table_clearance
+    keep = pts[:, 2] >= sc.scene.base_z() + sc.mapper.table_clearance
     pts = pts[keep]
     return pts[:n]

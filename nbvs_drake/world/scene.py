@@ -1,4 +1,4 @@
-"""The known environment (floor, table, optional chairs), the object, and the object
+"""The known environment (floor, the table or the support box, optional clutter: chairs, a room, obstacles), the object, and the object
 bounding box W_box, registered on a MultibodyPlant so that rendering (SceneGraph +
 RenderEngineVtk) and collision queries use one model."""
 
@@ -25,18 +25,23 @@ class Box:
 
 
 def environment_boxes(scene: SceneConfig) -> list[Box]:
-    """Floor, table top and legs, and (clutter = chairs) nine chairs around the table."""
+    """The known environment: the floor; the table (support table) or the support box (support
+    box, unless it is reconstructed with the object); and the clutter: nine chairs around the
+    table (chairs), a room's walls and furniture (room) or obstacles around the object (obstacles)."""
     s = scene
-    tx, ty = s.table_size
-    h = s.table_height
-    boxes = [Box("floor", (0.0, 0.0, -0.05), (8.0, 8.0, 0.1), color=(0.8, 0.8, 0.8, 1.0)),
-             Box("table_top", (0.0, 0.0, h - TABLE_THICKNESS / 2), (tx, ty, TABLE_THICKNESS))]
-    leg_h = h - TABLE_THICKNESS
-    for i, (sx, sy) in enumerate([(1, 1), (1, -1), (-1, 1), (-1, -1)]):
-        boxes.append(Box(f"table_leg{i}", (sx * (tx / 2 - LEG), sy * (ty / 2 - LEG), leg_h / 2),
-                         (LEG, LEG, leg_h)))
-    if s.clutter == "chairs":
-        boxes += chair_boxes(scene)
+    boxes = [Box("floor", (0.0, 0.0, -0.05), (8.0, 8.0, 0.1), color=(0.8, 0.8, 0.8, 1.0))]
+    if s.support == "table":
+        tx, ty = s.table_size
+        h = s.table_height
+        boxes.append(Box("table_top", (0.0, 0.0, h - TABLE_THICKNESS / 2), (tx, ty, TABLE_THICKNESS)))
+        leg_h = h - TABLE_THICKNESS
+        for i, (sx, sy) in enumerate([(1, 1), (1, -1), (-1, 1), (-1, -1)]):
+            boxes.append(Box(f"table_leg{i}", (sx * (tx / 2 - LEG), sy * (ty / 2 - LEG), leg_h / 2),
+                             (LEG, LEG, leg_h)))
+    elif s.support == "box" and not s.box_reconstructed:
+        bx, by, bz = s.box_size
+        boxes.append(Box("support_box", (s.object.xy[0], s.object.xy[1], bz / 2), (bx, by, bz)))
+    boxes += {"chairs": chair_boxes, "room": room_boxes, "obstacles": obstacle_boxes}.get(s.clutter, lambda _: [])(s)
     return boxes
 
 
@@ -62,6 +67,39 @@ def chair_boxes(scene: SceneConfig) -> list[Box]:
         bx, by = cx + 0.19 * math.cos(a), cy + 0.19 * math.sin(a)
         out.append(Box(f"chair{k}_back", (bx, by, 0.65), (0.04, 0.42, 0.4), yaw, (0.2, 0.3, 0.6, 1)))
     return out
+
+
+ROOM_HALF = 2.4  #: the room's walls stand this far from its centre (m); the base stays within +-1.9
+WALL = (0.85, 0.85, 0.8, 1.0)
+FURNITURE = (0.5, 0.42, 0.32, 1.0)
+
+
+def room_boxes(scene: SceneConfig) -> list[Box]:
+    """A 4.8 m x 4.8 m room like the lab of Vasquez-Gomez et al. 2017 Fig. 3: four walls 1.8 m
+    high, and furniture along them as known obstacles: a desk, a bookcase, a cabinet and a
+    second table, leaving the robot's start (-1.7, 0) and the middle of the room free."""
+    r, t = ROOM_HALF, 0.1
+    walls = [Box("wall_px", (r + t / 2, 0.0, 0.9), (t, 2 * r + 2 * t, 1.8), color=WALL),
+             Box("wall_nx", (-r - t / 2, 0.0, 0.9), (t, 2 * r + 2 * t, 1.8), color=WALL),
+             Box("wall_py", (0.0, r + t / 2, 0.9), (2 * r, t, 1.8), color=WALL),
+             Box("wall_ny", (0.0, -r - t / 2, 0.9), (2 * r, t, 1.8), color=WALL)]
+    furniture = [Box("desk", (1.0, 2.05, 0.375), (1.4, 0.7, 0.75), color=FURNITURE),
+                 Box("bookcase", (2.2, -0.4, 0.9), (0.4, 1.0, 1.8), color=FURNITURE),
+                 Box("cabinet", (-1.2, -2.15, 0.55), (0.8, 0.5, 1.1), color=FURNITURE),
+                 Box("side_table", (1.3, -1.9, 0.36), (0.9, 0.6, 0.72), color=FURNITURE)]
+    return walls + furniture
+
+
+def obstacle_boxes(scene: SceneConfig) -> list[Box]:
+    """Obstacles around the object as in Vasquez-Gomez et al. 2017 Fig. 19 (boxes, a bin, a
+    crate, a cabinet) 0.8-1.3 m from it, leaving the robot's start (-1.7, 0) a way in."""
+    x, y = scene.object.xy
+    spec = [("crate", (0.9, 0.85), (0.45, 0.45, 0.5), 0.3),
+            ("cabinet", (-0.15, 1.25), (0.6, 0.35, 0.9), 0.0),
+            ("bin", (0.75, -1.0), (0.35, 0.35, 0.6), 0.0),
+            ("boxes", (-0.95, -1.0), (0.5, 0.4, 0.4), -0.4),
+            ("stand", (1.35, -0.1), (0.3, 0.5, 1.0), 0.0)]
+    return [Box(n, (x + cx, y + cy, sz / 2), (sx, sy, sz), yaw, FURNITURE) for n, (cx, cy), (sx, sy, sz), yaw in spec]
 
 
 def _pose(center, yaw=0.0):
@@ -106,8 +144,12 @@ def add_environment(plant, sc: Scenario, *, object_obj: str | None = None,
         if visual:
             plant.RegisterVisualGeometry(world, RigidTransform(), mesh, "object",
                                          np.array([0.85, 0.85, 0.9, 1.0]))
-        if collision:
-            plant.RegisterCollisionGeometry(world, RigidTransform(), mesh, "object", friction)
+        if collision:  # Drake collides a mesh as its convex hull: an object of parts, part by part
+            from .objects import ObjectMesh
+            parts = ObjectMesh.part_files(object_obj) or [object_obj]
+            for k, p in enumerate(parts):
+                plant.RegisterCollisionGeometry(world, RigidTransform(), Mesh(str(p), 1.0),
+                                                "object" if len(parts) == 1 else f"object_part{k}", friction)
     for n, (c, size) in enumerate(obstacle_boxes or []):
         plant.RegisterCollisionGeometry(world, _pose(c), DBox(*size), f"map_obstacle_{n}", friction)
     if add_wbox_obstacle:

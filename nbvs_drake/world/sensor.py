@@ -148,6 +148,15 @@ def projector_shadow(z: np.ndarray, fb: float) -> np.ndarray:
     return ok & (p > beyond + 1e-9)
 
 
+def binned_cloud(points_xyz: np.ndarray, size: tuple[int, int], binning: int) -> np.ndarray:
+    """A (3, w h) Drake point cloud of a (width, height) image, row by row, thinned to the
+    centre pixel of each binning x binning block (pixels b // 2, b // 2 + b, ... of each row and column)."""
+    w, h = size
+    b = int(binning)
+    P = np.asarray(points_xyz).reshape(3, h, w)
+    return P[:, b // 2::b, b // 2::b].reshape(3, -1)
+
+
 def clean_scan(points_xyz: np.ndarray) -> np.ndarray:
     """(N, 3) finite returns of a (3, N) Drake point cloud: pixels with no return (+-inf) and
     NaN depth are dropped, never passed to the map."""

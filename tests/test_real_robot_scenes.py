@@ -1,0 +1,140 @@
+"""The real-robot scenes (Vasquez-Gomez et al. 2017 §8.4): the office chair in a room, the
+suitcase among obstacles, the humanoid on a box; objects on the floor or on a box; the
+automatic W_box; the stop on the unknown voxels a view can reach; the Kinect's planner model."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nbvs_drake.config import load_scenario
+from nbvs_drake.errors import ScenarioError
+from nbvs_drake.mapping.occupancy import OccupancyMap
+from nbvs_drake.world.objects import build_object
+from nbvs_drake.world.primitives import box, cylinder, sphere
+from nbvs_drake.world.scene import environment_boxes
+from nbvs_drake.world.sensor import binned_cloud
+from nbvs_drake.world.shapes import SHAPES
+
+SCENES = ["real_robot", "real_robot_obstacles", "real_robot_humanoid"]
+
+
+def _closed_volume(V, T) -> float:
+    """The signed volume of a closed mesh (positive when its triangles face outwards)."""
+    a, b, c = V[T[:, 0]], V[T[:, 1]], V[T[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+@pytest.mark.parametrize("make, volume", [
+    (lambda: box((0, 0, 0), (0.2, 0.3, 0.4)), 0.024),
+    (lambda: box((0, 0, 0), (0.2, 0.3, 0.4), yaw=0.7, about=(0.1, 0.1)), 0.024),
+    (lambda: cylinder((0.1, 0.2), 0.0, 0.5, 0.1, sides=64), np.pi * 0.01 * 0.5),
+    (lambda: cylinder((0.1, 0.2), 0.0, 0.5, 0.1, sides=64, axis="x"), np.pi * 0.01 * 0.5),
+    (lambda: cylinder((0.1, 0.2), 0.0, 0.5, 0.1, sides=64, axis="y"), np.pi * 0.01 * 0.5),
+    (lambda: sphere((0, 0, 1), 0.2, rings=32, sectors=64), 4 / 3 * np.pi * 0.008),
+])
+def test_primitives_are_closed_and_face_outwards(make, volume):
+    V, T = make()
+    assert _closed_volume(V, T) == pytest.approx(volume, rel=0.02)
+
+
+@pytest.mark.parametrize("kind, extent", [("chair", (0.58, 0.6, 0.9)), ("suitcase", (0.26, 0.42, 0.9)),
+                                          ("humanoid", (0.11, 0.27, 0.58))])
+def test_the_built_objects_have_their_real_size_and_convex_parts(kind, extent):
+    V, T, parts = SHAPES[kind]()
+    size = V.max(axis=0) - V.min(axis=0)
+    assert np.allclose(size, extent, atol=0.03)
+    assert V[:, 2].min() == pytest.approx(0.0)
+    assert parts.max() >= 8  # thin parts, each its own convex piece
+    for k in np.unique(parts):  # every part closed and facing outwards
+        assert _closed_volume(V, T[parts == k]) > 0
+
+
+@pytest.mark.parametrize("support, top", [("floor", 0.0), ("box", 0.3), ("table", 0.43)])
+@pytest.mark.parametrize("kind", ["bunny", "chair"])
+def test_an_object_rests_on_its_support_inside_an_automatic_wbox(support, top, kind):
+    sc = load_scenario(settings=[f"scene.object.kind={kind}", f"scene.support={support}", "scene.box_size=[0.4, 0.4, 0.3]",
+                                 "scene.bbox_min=null", "scene.bbox_max=null"])
+    mesh = build_object(sc)
+    lo, hi = mesh.bounds
+    assert lo[2] == pytest.approx(top)
+    assert sc.scene.bbox_min[2] == pytest.approx(top)
+    assert np.all(lo[:2] >= np.array(sc.scene.bbox_min[:2]) + 0.049)
+    assert np.all(hi <= np.array(sc.scene.bbox_max) - 0.049)
+    names = [b.name for b in environment_boxes(sc.scene)]
+    assert ("table_top" in names) == (support == "table")
+    assert ("support_box" in names) == (support == "box")
+
+
+def test_a_reconstructed_box_is_part_of_the_object_and_not_of_the_environment():
+    sc = load_scenario("real_robot_humanoid")
+    mesh = build_object(sc)
+    assert mesh.bounds[0][2] == pytest.approx(0.0)
+    assert mesh.bounds[1][2] == pytest.approx(0.3 + 0.58, abs=0.01)
+    assert sc.scene.base_z() == 0.0 and sc.scene.bbox_min[2] == 0.0
+    assert "support_box" not in [b.name for b in environment_boxes(sc.scene)]
+    with pytest.raises(ScenarioError, match="box_reconstructed needs"):
+        load_scenario(settings=["scene.box_reconstructed=true"])
+
+
+def test_the_scenes_have_their_known_obstacles():
+    names = {n: [b.name for b in environment_boxes(load_scenario(n).scene)] for n in SCENES}
+    assert {"wall_px", "wall_nx", "wall_py", "wall_ny", "desk", "bookcase"} <= set(names["real_robot"])
+    assert {"crate", "cabinet", "bin"} <= set(names["real_robot_obstacles"])
+    assert "table_top" not in names["real_robot"]
+
+
+def test_preset_setting_runs_the_same_scene_with_the_papers_planner():
+    ours, paper = load_scenario("real_robot"), load_scenario("real_robot", settings=["preset=real_robot_paper"])
+    assert (ours.scene.object.kind, paper.scene.object.kind) == ("chair", "chair")
+    assert paper.scene.clutter == ours.scene.clutter == "room"
+    assert paper.planner.n_candidates == 100_000 and paper.planner.overlap_h == 0.65
+    assert paper.planner.rrt_max_nodes() == 10_000 and paper.planner.utility.samples == 500
+    assert ours.planner.n_candidates == 4000 and ours.planner.is_roadmap()
+    for sc in (ours, paper):
+        assert sc.sensor.preset == "kinect" and sc.mapper.voxel_size == 0.03
+        assert sc.mission.stop_unknown_voxels == 30 and sc.mission.on_collision == "stop"
+        assert sc.noise.sigma_w == 0.28
+
+
+def test_the_support_band_follows_the_sensors_depth_error():
+    assert load_scenario().mapper.table_clearance == 0.005
+    assert load_scenario(settings=["sensor.preset=kinect"]).mapper.table_clearance == pytest.approx(0.0137, abs=1e-4)
+    assert load_scenario(settings=["mapper.table_clearance=0.01"]).mapper.table_clearance == 0.01
+
+
+def test_unknown_voxels_walled_in_by_surface_are_not_left_to_reach():
+    sc = load_scenario()
+    m = OccupancyMap.for_scenario(sc)
+    lo = m.logodds.copy()
+    lo[:] = m.model.l_free - 1.0  # everything seen free
+    shell = np.zeros(lo.shape, bool)
+    shell[10:16, 10:16, 5:11] = True
+    lo[shell] = m.model.l_occ + 1.0  # a solid's surface
+    lo[11:15, 11:15, 6:10] = 0.0  # its inside, unknown (4 x 4 x 4)
+    lo[0:3, 0:3, 3:6] = 0.0  # an unknown pocket in the open, on the map's side
+    lo[20:23, 20:23, 4:7] = 0.0  # and one in free space
+    m2 = OccupancyMap(m.spec, m.model, lo.astype(np.float32))
+    assert m2.unknown_count() == 64 + 27 + 27
+    assert m2.reachable_unknown_count() == 54
+
+
+def test_binned_cloud_keeps_each_blocks_centre_pixel():
+    w, h = 7, 5
+    P = np.arange(3 * w * h, dtype=float).reshape(3, h * w)
+    B = binned_cloud(P, (w, h), 3)
+    assert B.shape == (3, 2 * 2)
+    img = P.reshape(3, h, w)
+    assert np.array_equal(B.reshape(3, 2, 2), img[:, 1::3, 1::3])
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_each_scene_renders_the_object_from_the_start(name, tmp_path):
+    from nbvs_drake.perception.scanning import ScanRenderer
+    from nbvs_drake.world.robot import RobotKinematics
+    sc = load_scenario(name)
+    kin = RobotKinematics(sc.robot.urdf)
+    r = ScanRenderer(sc, tmp_path, kin)
+    scan = r.scan(np.array(sc.robot.start))
+    m = r.integrate(OccupancyMap.for_scenario(sc), scan)
+    assert len(m.object_points) > 2000  # the object is beyond the Kinect's 0.7 m and in view

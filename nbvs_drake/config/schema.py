@@ -40,10 +40,6 @@ SENSOR_PRESETS = {
 METRICS = ("sur", "fig", "sig", "vuv", "rsv", "seed001", "surface", "coverage")
 
 
-#: planner.max_view_distance null: this far beyond the sensor's minimum range (m)
-VIEW_BAND = 0.6
-
-
 def support_clearance(sensor) -> float:
     """The band above the support that is not object points: the sensor's depth error at 1.5 m
     (3 sigma_z of its axial noise and half its disparity step), at least 5 mm."""
@@ -610,9 +606,8 @@ class PlannerConfig:
     n_candidates: int = 4000  #: state samples whose director ray meets W_box
     max_generation_factor: int = 200  #: at most this many x n_candidates raw samples
     #: the director ray must enter W_box within this distance (m): where the sensor samples
-    #: densely enough for the coverage threshold; None: 0.6 m beyond the sensor's minimum range
-    #: (1.0 m for the SR4000, 1.3 m for the Kinect)
-    max_view_distance: Optional[float] = None
+    #: densely enough for the coverage threshold
+    max_view_distance: float = 1.0
     overlap_h: float = 0.5  #: registration threshold h (Table 1: 50 %); 0: no overlap filter
     top_k: int = 25  #: candidates kept for motion planning (§7.6 step 7)
     #: the distance weights of eq. 8 (x, y, theta, q1..q5)
@@ -692,8 +687,6 @@ class PlannerConfig:
         require(self.n_candidates > 0, f"{at}.n_candidates must be > 0, got {self.n_candidates}")
         require(self.max_generation_factor >= 1, f"{at}.max_generation_factor must be >= 1")
         z_near = sensor.resolved().z_near
-        if self.max_view_distance is None:
-            self.max_view_distance = round(z_near + VIEW_BAND, 4)
         require(finite(self.max_view_distance) and self.max_view_distance > z_near,
                 f"{at}.max_view_distance must be beyond the sensor's z_near ({z_near}), got {self.max_view_distance}")
         require(finite(self.overlap_h) and 0 <= self.overlap_h <= 1,

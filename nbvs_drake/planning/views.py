@@ -148,8 +148,7 @@ class ViewEvaluator:
 
     def _density(self, omap: OccupancyMap) -> np.ndarray:
         """sample_density(omap), once per set of object points."""
-        every = resolve_sensor(self.sensor).model_binning ** 2
-        return self._per_map("density", omap.object_points, lambda: sample_density(omap, every=every))
+        return self._per_map("density", omap.object_points, lambda: sample_density(omap))
 
     def _facing(self, omap: OccupancyMap):
         """facing_density(omap), once per set of object points."""
@@ -252,7 +251,7 @@ def coarse_to_exact_scale(met: np.ndarray, n_coarse: int, n_exact: int) -> np.nd
 DENSITY_NEIGHBOURS = 10
 
 
-def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS, every: int = 1) -> np.ndarray:
+def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS) -> np.ndarray:
     """Samples per m^2 of surface in each voxel (float32 grid; 0 where the map has no object
     point): the median over the voxel's object points of their local density (k - 1/3) /
     (pi d_k^2), d_k the distance to a point's k-th nearest neighbour among the map's points
@@ -263,11 +262,7 @@ def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS, every: int =
     only clips a voxel's corner as sparsely sampled however dense its samples were: on the
     bunny after 12 scans it put the surface not yet covered at 3 mm within the observed
     voxels at 0.051 m^2 where the ground truth left 0.015 m^2 (this estimate: 0.019 m^2), and
-    the planner kept returning to surface it had covered (docs/decisions.md).
-
-    every: the median is taken over every `every`-th point (in the order the scans added them;
-    their neighbours among all points): the sensor's model_binning squared, one point per
-    model pixel, so that a Kinect's many returns cost what an SR4000's do."""
+    the planner kept returning to surface it had covered (docs/decisions.md)."""
     from scipy.spatial import cKDTree
     dims = omap.spec.dims
     out = np.zeros(dims, np.float32)
@@ -275,9 +270,8 @@ def sample_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS, every: int =
     idx, inside = omap.spec.voxel_index(pts)
     if int(np.count_nonzero(inside)) == 0 or len(pts) <= k:
         return out
-    sel = np.flatnonzero(inside)[::max(1, int(every))]
-    dk = cKDTree(pts).query(pts[sel], k + 1)[0][:, -1]  # the nearest is the point itself
-    vox, med = _median_by(np.ravel_multi_index(idx[sel].T, dims), _knn_density(k, dk))
+    dk = cKDTree(pts).query(pts[inside], k + 1)[0][:, -1]  # the nearest is the point itself
+    vox, med = _median_by(np.ravel_multi_index(idx[inside].T, dims), _knn_density(k, dk))
     out.reshape(-1)[vox] = med
     return out
 

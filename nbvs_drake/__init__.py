@@ -13,6 +13,10 @@ from .kernel_cache import drop_stale
 drop_stale()  # before any kernel loads from numba's cache (kernel_cache.py says why)
 
 from .app.api import RunResult, reconstruct  # noqa: E402
+from .config.schema import set_wbox_rule  # noqa: E402
+from .world.objects import automatic_wbox  # noqa: E402
+
+set_wbox_rule(automatic_wbox)  # the configuration's automatic W_box, from the object model
 
 __version__ = "0.1.0"
 

@@ -16,7 +16,7 @@ def _wall(x=0.11):  # mid-voxel: each point in one voxel
 
 
 def test_scan_outcome_counts_revealed_voxels_points_and_overlap():
-    sc = Scenario()
+    sc = Scenario().check()
     m0 = OccupancyMap.for_scenario(sc)
     o = np.array([-1.0, 0.0, 0.65])
     m1, _ = m0.integrate(o, _wall(), sc.mapper.table_clearance)

@@ -20,7 +20,7 @@ def _wall_scan():
 
 
 def test_free_along_rays_occupied_at_hits_unknown_behind():
-    sc = Scenario()
+    sc = Scenario().check()
     m0 = OccupancyMap.for_scenario(sc)
     pts, X = _wall_scan()
     m1, stats = m0.integrate(X.translation(), pts, sc.mapper.table_clearance)
@@ -49,7 +49,7 @@ def test_free_along_rays_occupied_at_hits_unknown_behind():
 
 
 def test_table_points_are_not_object_hits():
-    sc = Scenario()
+    sc = Scenario().check()
     m0 = OccupancyMap.for_scenario(sc)
     pts = np.array([[0.0, 0.0, sc.scene.table_height + 0.001], [0.0, 0.05, 0.6]])
     m1, stats = m0.integrate(np.array([-1.0, 0.0, 0.9]), pts, sc.mapper.table_clearance)
@@ -58,7 +58,7 @@ def test_table_points_are_not_object_hits():
 
 
 def test_mapper_system_integrates_each_registered_scan_once():
-    sc = Scenario()
+    sc = Scenario().check()
     mapper = OctreeMapper(sc.scene, sc.mapper, 0.1)
     sim = Simulator(mapper)
     ctx = sim.get_mutable_context()
@@ -87,7 +87,7 @@ def test_mapper_system_integrates_each_registered_scan_once():
 
 def test_no_return_pixels_clear_free_space():
     from nbvs_drake.world.sensor import no_return_rays, ray_directions
-    sc = Scenario()
+    sc = Scenario().check()
     dirs = ray_directions(sc.sensor, 1)[0]
     depth = np.full((144, 176), np.inf, np.float32)
     depth[0, 0] = np.nan
@@ -101,7 +101,7 @@ def test_no_return_pixels_clear_free_space():
 
 
 def test_save_load_roundtrip(tmp_path):
-    sc = Scenario()
+    sc = Scenario().check()
     pts, X = _wall_scan()
     m, _ = OccupancyMap.for_scenario(sc).integrate(X.translation(), pts, 0.005)
     m.save_npz(tmp_path / "m.npz")

@@ -71,8 +71,8 @@ def test_scenario_by_name_path_or_neither(tmp_path, monkeypatch):
             resources.scenario_path(bad)
         msg = str(e.value)
         assert "\n" not in msg and msg.startswith(f"scenario file not found: {bad}")
-        assert "built-in: cluttered_room, cluttered_room_nbvs, default, teapot_du, teapot_du_mu, teapot_eu_mu, " \
-            "teapot_eu_mu_nbvs" in msg
+        assert "built-in: cluttered_room, cluttered_room_nbvs, default, real_robot, real_robot_humanoid, " \
+            "real_robot_obstacles, teapot_du, teapot_du_mu, teapot_eu_mu, teapot_eu_mu_nbvs" in msg
 
 
 def test_relative_mesh_paths_resolve_against_the_scenario_folder(tmp_path, monkeypatch):

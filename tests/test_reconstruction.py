@@ -71,7 +71,7 @@ def test_surface_fusion_meshes_the_registered_scans(sphere):
     FixValue'd as registered scans; its mesh lies on the sphere (within a voxel) and covers
     both sides; a scan not integrated is left out; the table is cropped away."""
     V, T, _ = sphere
-    sc = Scenario()
+    sc = Scenario().check()
     c = np.array([0.0, 0.0, sc.scene.table_height + R + 0.05])
     fusion = SurfaceFusion(sc.scene, sc.mapper, sc.sensor, 0.1)
     sim = Simulator(fusion)

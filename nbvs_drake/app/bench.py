@@ -524,6 +524,13 @@ def bench_oracle(objects=("teapot", "bunny", "dragon"), n_poses: int = 2000, sca
     return out
 
 
+def _undo(c, P: np.ndarray) -> np.ndarray:
+    """The points P moved by the inverse of the planar correction c."""
+    d = P - np.array([c.dx, c.dy, 0.0])
+    cs, sn = np.cos(c.dyaw), np.sin(c.dyaw)
+    return np.stack([cs * d[:, 0] + sn * d[:, 1], -sn * d[:, 0] + cs * d[:, 1], d[:, 2]], axis=1)
+
+
 def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int = 1) -> dict:
     """Registration and map update of the Kinect's scans (307,200 pixels) in `scenario` (the
     chair in the room): a scan from the start builds the model and the map; each next one is
@@ -560,18 +567,15 @@ def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int
             truth = Correction(*rng.normal(0.0, [0.02, 0.02, np.radians(3.0)]))
             X = kin.camera_poses(qi)[0]
             cloud = r.organised_cloud(qi)
-            c_, s_ = np.cos(truth.dyaw), np.sin(truth.dyaw)
-
-            def wrong(P):  # the inverse of truth: the scan as the believed pose puts it
-                d = P - np.array([truth.dx, truth.dy, 0.0])
-                return np.stack([c_ * d[:, 0] + s_ * d[:, 1], -s_ * d[:, 0] + c_ * d[:, 1], d[:, 2]], axis=1)
+            wrong = functools.partial(_undo, truth)  # the scan as the believed pose puts it
             full = wrong(clean_scan(cloud))
             row = {"points": int(len(full))}
-            for name, P in (("binned", wrong(clean_scan(binned_cloud(cloud, (rs.width, rs.height), rs.model_binning)))),
+            binned = clean_scan(binned_cloud(cloud, (rs.width, rs.height), rs.model_binning))
+            for name, P in (("binned", wrong(binned)),
                             ("full", full)):
                 t = time.perf_counter()
-                icp = R.register_scan(P[R.region_mask(sc.scene, P, cfg)], model, prior, cfg,
-                                      free_at=functools.partial(omap.free_hits, table_clearance=sc.mapper.table_clearance),
+                free_at = functools.partial(omap.free_hits, table_clearance=sc.mapper.table_clearance)
+                icp = R.register_scan(P[R.region_mask(sc.scene, P, cfg)], model, prior, cfg, free_at=free_at,
                                       view=R.ScanView(X[:3, 3], P, solids))
                 row[f"{name}_s"] = time.perf_counter() - t
                 c = icp.correction

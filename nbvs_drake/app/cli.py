@@ -130,7 +130,8 @@ def main(argv=None) -> int:
                    help="every built-in scenario (written into the repository's diagrams/ in a source checkout)")
     d.set_defaults(func=_cmd_diagram)
     b = sub.add_parser("bench", help="benchmarks, printing JSON")
-    b.add_argument("what", choices=["visibility", "planning", "motion", "collision", "prediction", "oracle", "registration"])
+    b.add_argument("what", choices=["visibility", "planning", "motion", "collision", "prediction", "oracle",
+                                    "registration"])
     b.add_argument("--json", action="store_true", help="one line of JSON")
     b.add_argument("--views", type=int, default=400, help="views per timing batch")
     b.set_defaults(func=lambda a: __import__("nbvs_drake.app.bench", fromlist=["main"]).main(a))

@@ -40,6 +40,17 @@ SENSOR_PRESETS = {
 METRICS = ("sur", "fig", "sig", "vuv", "rsv", "seed001", "surface", "coverage")
 
 
+#: how an automatic W_box is found (scene.bbox_min null): the object model's rule
+#: (world.objects.automatic_wbox), registered by the package (nbvs_drake/__init__.py) so that the
+#: configuration does not import the models
+_WBOX_RULE: list = []
+
+
+def set_wbox_rule(rule) -> None:
+    """Registers rule(scenario) -> (bbox_min, bbox_max), the automatic W_box."""
+    _WBOX_RULE[:] = [rule]
+
+
 def support_clearance(sensor) -> float:
     """The band above the support that is not object points: the sensor's depth error at 1.5 m
     (3 sigma_z of its axial noise and half its disparity step), at least 5 mm."""
@@ -176,6 +187,10 @@ class SceneConfig:
         """The z of the surface under what is reconstructed (the support box's top, or the floor
         when the box is reconstructed with the object)."""
         return 0.0 if self.support == "box" and self.box_reconstructed else self.support_top()
+
+    def base_name(self) -> str:
+        """What base_z is the top of, in words."""
+        return "floor" if self.base_z() == 0.0 else {"table": "table top", "box": "box's top"}[self.support]
 
     def check(self, at: str = "scene") -> None:
         require(self.support in SUPPORTS, f"{at}.support must be one of {', '.join(SUPPORTS)}, got {self.support!r}")
@@ -672,7 +687,7 @@ class PlannerConfig:
             require(s.range is None or (finite(s.range) and s.range > 0),
                     f"{at}.strategy.range must be > 0 (m) or null, got {s.range}")
             require(s.height is None or (finite(s.height) and s.height > scene.base_z()),
-                    f"{at}.strategy.height must be above the object's support ({scene.base_z()} m) or null, "
+                    f"{at}.strategy.height must be above the {scene.base_name()} ({scene.base_z()} m) or null, "
                     f"got {s.height}")
             if s.range is not None:
                 half = [(b - a) / 2 for a, b in zip(scene.bbox_min, scene.bbox_max)]
@@ -774,8 +789,8 @@ class Scenario:
         if self.mapper.table_clearance is None:
             self.mapper.table_clearance = support_clearance(self.sensor)
         if self.scene.bbox_min is None:  # W_box around what is reconstructed
-            from ..world.objects import automatic_wbox
-            self.scene.bbox_min, self.scene.bbox_max = automatic_wbox(self)
+            require(_WBOX_RULE, "scene.bbox_min null needs the object model (import nbvs_drake)")
+            self.scene.bbox_min, self.scene.bbox_max = _WBOX_RULE[0](self)
         self.sensor.check()
         self.noise.check()
         self.mapper.check(self.scene)

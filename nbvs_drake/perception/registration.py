@@ -359,9 +359,10 @@ class PlanarIcp:
         self.tree = cKDTree(self.Q)
         self.Cinv = np.linalg.inv(prior_cov)
         self.fine = _thin(_stage_points(scan_pts, cfg.model_voxel, cfg, 0.0), cfg.max_points)
-        self.coarse = {(v, d): (_thin(_stage_points(scan_pts, v, cfg, d), cfg.max_coarse_points if i == 0 else cfg.max_points)
+        caps = [cfg.max_coarse_points] + [cfg.max_points] * (len(cfg.stages) - 1)
+        self.coarse = {(v, d): (_thin(_stage_points(scan_pts, v, cfg, d), cap)
                                 if v > cfg.model_voxel or d >= cfg.far_voxel else self.fine)
-                       for i, (v, d) in enumerate(cfg.stages)}
+                       for cap, (v, d) in zip(caps, cfg.stages)}
 
     def refine(self, xi, stages=None):
         cfg, Q, NQ, Cinv = self.cfg, self.Q, self.NQ, self.Cinv

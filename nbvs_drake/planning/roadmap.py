@@ -242,9 +242,10 @@ class Roadmap:
 
     # ------------------------------------------------------------------ the query
     def query(self, q_start: np.ndarray, goals: np.ndarray, collision, path_free_py, rng: np.random.Generator):
-        """Paths from q_start to each of goals (K, 8): a list of (controls, states, nodes: the roadmap vertices it runs through) or None,
-        and the QueryStats. collision: the plan's CollisionModel (with its certificate);
-        path_free_py(states) -> bool: the motion planner's check of a path from the start."""
+        """Paths from q_start to each of goals (K, 8): a list of (controls, states, nodes: the
+        roadmap vertices it runs through) or None, and the QueryStats. collision: the plan's
+        CollisionModel (with its certificate); path_free_py(states) -> bool: the motion planner's
+        check of a path from the start."""
         st = QueryStats()
         if self._model is not collision:  # other obstacles: every edge is checked again when used
             self.state[:] = UNCHECKED

@@ -98,7 +98,8 @@ class PlanReport(_Immutable):
     PlanResult's JSON (utility, factors, stages, times, path_kind, q_goal, n_controls, path,
     candidates); the belief the plan started from (believed_state: dead-reckoned,
     corrected_state: registered, start_sigma: its spread); plan_id and motion_sim_s of the
-    emitted plan; recovery_s: the recovery planning since the previous scan. `status` "" and scan 0: no scan answered yet."""
+    emitted plan; recovery_s: the recovery planning since the previous scan. `status` "" and
+    scan 0: no scan answered yet."""
     scan: int = 0
     status: str = ""
     stop_reason: str = ""
@@ -119,7 +120,8 @@ class PlanReport(_Immutable):
         d = {"scan": self.scan, **self.result}
         if self.status:
             d["status"] = self.status
-        for k in ("plan_s", "believed_state", "corrected_state", "start_sigma", "plan_id", "motion_sim_s", "recovery_s"):
+        for k in ("plan_s", "believed_state", "corrected_state", "start_sigma", "plan_id", "motion_sim_s",
+                  "recovery_s"):
             v = getattr(self, k)
             if v is not None:
                 d[k] = v

@@ -1,6 +1,6 @@
-"""The known environment (floor, the table or the support box, optional clutter: chairs, a room, obstacles), the object, and the object
-bounding box W_box, registered on a MultibodyPlant so that rendering (SceneGraph +
-RenderEngineVtk) and collision queries use one model."""
+"""The known environment (floor, the table or the support box, optional clutter: chairs, a
+room, obstacles), the object, and the object bounding box W_box, registered on a MultibodyPlant
+so that rendering (SceneGraph + RenderEngineVtk) and collision queries use one model."""
 
 from __future__ import annotations
 

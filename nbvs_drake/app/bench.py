@@ -46,6 +46,66 @@ def _bench_maps(sc, kin, r, n_scans: int, rng) -> tuple[list, list]:
     return maps, scans
 
 
+def _agreement(base, new, maps, sets, score_of, k_top: int):
+    """(seconds of base, seconds of new, best view the same, Spearman's rho, share of the exact
+    top k_top in new's) over the candidate sets, set k on map k mod len(maps): `base` evaluates
+    every view (the exact ranking), `new` ranks them as the planner does (evaluate_ranked)."""
+    from scipy.stats import spearmanr
+    for m in maps:  # compile / load the caches, and the per-map memos (sample density, near surface)
+        base.evaluate(m, sets[0][:2]), new.evaluate_ranked(m, sets[0][:40], score_of(m))
+    t_base = t_new = 0.0
+    agree, rho, top = [], [], []
+    for k, q in enumerate(sets):
+        m = maps[k % len(maps)]
+        score = score_of(m)
+        t = time.perf_counter()
+        exact = score(base.evaluate(m, q))
+        t_base += time.perf_counter() - t
+        t = time.perf_counter()
+        met, order = new.evaluate_ranked(m, q, score)
+        t_new += time.perf_counter() - t
+        agree.append(bool(exact[order[0]] == exact.max()))
+        rho.append(float(spearmanr(exact, score(met))[0]))
+        top.append(len(np.intersect1d(order[:k_top], np.argsort(-exact, kind="stable")[:k_top])) / k_top)
+    return t_base, t_new, agree, rho, top
+
+
+def bench_visibility_sensor(sensor: str = "kinect", trials: int = 8, per_trial: int = 300, seed: int = 0,
+                            n_maps: int = 4) -> dict:
+    """The planner's view evaluator with `sensor` on the default scene (the preset nbvs: one ray
+    per planner.evaluator.stride x sensor.model_binning pixels, coarse to fine) against every
+    pixel (one ray each, the exact ranking), on `trials` sets of `per_trial` candidate views
+    spread over the maps after 1..n_maps scans, in the same run: the best view the same, Spearman's
+    rank correlation, the exact top_k kept, and each evaluator's milliseconds per view."""
+    from ..planning.views import ViewEvaluator, ranking_score
+    from ..world.sensor import resolve_sensor
+    sc = load_scenario(settings=[f"sensor.preset={sensor}"])
+    kin = RobotKinematics(sc.robot.urdf)
+    with tempfile.TemporaryDirectory() as tmp:
+        maps, _ = _bench_maps(sc, kin, ScanRenderer(sc, Path(tmp), kin), n_maps, np.random.default_rng(seed))
+    sc.planner.n_candidates = per_trial
+    sampler = StateSampler(sc, kin)
+    sets = [sampler.generate(np.random.default_rng([seed, k]))[0][:per_trial] for k in range(trials)]
+    base, new = ViewEvaluator(kin, sc, stride=1), ViewEvaluator(kin, sc)
+
+    def score_of(m):
+        return ranking_score(base, m, sc.planner.metric, sc.planner.overlap_h, max(m.unknown_count(), 1))
+    t_base, t_new, agree, rho, top = _agreement(base, new, maps, sets, score_of, sc.planner.top_k)
+    n = trials * per_trial
+    rs = resolve_sensor(sc.sensor)
+    return {
+        "scene": f"default (teapot) after 1..{n_maps} scans", "sensor": f"{rs.preset} {rs.width}x{rs.height}",
+        "model_binning": rs.model_binning, "pixels_per_ray": new.stride, "coarse_pixels_per_ray": new.coarse_stride,
+        "rays_per_view": int(len(new.dirs)), "baseline_rays_per_view": int(len(base.dirs)),
+        "views_per_trial": per_trial, "trials": trials,
+        "best_view_agreement_full_res": float(np.mean(agree)),
+        "rank_agreement_full_res": float(np.mean(rho)), "rank_agreement_full_res_min": float(np.min(rho)),
+        "top_k_agreement_full_res": float(np.mean(top)),
+        "ms_per_view": 1e3 * t_new / n, "baseline_ms_per_view_full_res": 1e3 * t_base / n,
+        "speedup_full_res": t_base / t_new,
+    }
+
+
 def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000, seed: int = 0,
                      n_maps: int = 4, coarse_stride: int = 2, hrt_per_trial: int = 200) -> dict:
     """The view evaluator at full resolution (one ray per pixel) on the default scene's maps
@@ -61,7 +121,6 @@ def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000
     HRT (a = 2) after the first scan against the same baseline: speed on `n_views` views, the
     best view by FIG the same on `trials` sets of `hrt_per_trial` views."""
     import numba
-    from scipy.stats import spearmanr
 
     from ..planning.views import ViewEvaluator, ranking_score
     sc = load_scenario()
@@ -87,24 +146,7 @@ def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000
     def score_of(m):
         return ranking_score(base, m, sc.planner.metric, sc.planner.overlap_h, max(m.unknown_count(), 1))
 
-    # compile / load the caches, and the per-map memos (sample density, near surface)
-    for m in maps:
-        base.evaluate(m, sets[0][:2]), new.evaluate_ranked(m, sets[0][:40], score_of(m))
-    t_base = t_new = 0.0
-    agree, rho, top = [], [], []
-    for k, q in enumerate(sets):
-        m = maps[k % len(maps)]
-        score = score_of(m)
-        t = time.perf_counter()
-        exact = score(base.evaluate(m, q))
-        t_base += time.perf_counter() - t
-        t = time.perf_counter()
-        met, order = new.evaluate_ranked(m, q, score)
-        t_new += time.perf_counter() - t
-        agree.append(bool(exact[order[0]] == exact.max()))
-        rho.append(float(spearmanr(exact, score(met))[0]))
-        k_top = sc.planner.top_k
-        top.append(len(np.intersect1d(order[:k_top], np.argsort(-exact, kind="stable")[:k_top])) / k_top)
+    t_base, t_new, agree, rho, top = _agreement(base, new, maps, sets, score_of, sc.planner.top_k)
     q1 = sets[0]
     numba.set_num_threads(1)
     try:
@@ -612,7 +654,8 @@ def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int
 
 def main(args) -> int:
     if args.what == "visibility":
-        res = bench_visibility(n_views=args.views)
+        res = (bench_visibility(n_views=args.views) if args.sensor == "sr4000"
+               else bench_visibility_sensor(args.sensor))
     elif args.what == "planning":
         res = bench_planning()
     elif args.what == "motion":

@@ -65,6 +65,16 @@ def pose_errors(records: list[dict]) -> dict:
     return out
 
 
+def summary_cov(records: list[dict], key: str) -> float:
+    """The last iteration's coverage `key` (0 before any scan)."""
+    return records[-1][key] if records else 0.0
+
+
+def share_of(value: float, ceiling) -> float | None:
+    """value over its ceiling (None without a positive ceiling), rounded as the summary is."""
+    return round(value / ceiling, 6) if ceiling else None
+
+
 def recovery_counts(records: list[dict]) -> dict:
     """mission.verify_views: localisation frames taken before the sensing scans, and of them
     those answered by a correction (`corrections`) and by a re-localisation view (`recoveries`)."""
@@ -186,19 +196,17 @@ def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat
         "scenario": sc.name,
         "seed": sc.seed,
         "planner": sc.planner.strategy_word(),
-        "coverage": records[-1]["coverage"] if records else 0.0,
-        "coverage_5mm": records[-1]["coverage_5mm"] if records else 0.0,
-        "coverage_voxel": records[-1]["coverage_voxel"] if records else 0.0,
-        "coverage_1cm": records[-1]["coverage_1cm"] if records else 0.0,
+        "coverage": summary_cov(records, "coverage"),
+        "coverage_5mm": summary_cov(records, "coverage_5mm"),
+        "coverage_voxel": summary_cov(records, "coverage_voxel"),
+        "coverage_1cm": summary_cov(records, "coverage_1cm"),
         "coverage_by_scan": [r["coverage"] for r in records],
         # the share of the surface any reachable pose can see (planning/oracle.py), and ours of it
         "coverage_ceiling": ceiling["ceiling"] if ceiling else None,
-        "coverage_of_ceiling": (round((records[-1]["coverage"] if records else 0.0) / ceiling["ceiling"], 6)
-                                if ceiling and ceiling["ceiling"] > 0 else None),
+        "coverage_of_ceiling": share_of(summary_cov(records, "coverage"), ceiling and ceiling["ceiling"]),
         # at 1 cm (a map of 3 cm voxels): the ceiling and ours of it
         "coverage_ceiling_1cm": ceiling["ceiling_1cm"] if ceiling else None,
-        "coverage_of_ceiling_1cm": (round((records[-1]["coverage_1cm"] if records else 0.0) / ceiling["ceiling_1cm"], 6)
-                                    if ceiling and ceiling["ceiling_1cm"] > 0 else None),
+        "coverage_of_ceiling_1cm": share_of(summary_cov(records, "coverage_1cm"), ceiling and ceiling["ceiling_1cm"]),
         "scans": int(omap.scan_count),
         "collisions": collided,
         "executed_trajectories": executed,

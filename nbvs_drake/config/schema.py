@@ -188,9 +188,13 @@ class SceneConfig:
         when the box is reconstructed with the object)."""
         return 0.0 if self.support == "box" and self.box_reconstructed else self.support_top()
 
+    def on_floor(self) -> bool:
+        """Whether what is reconstructed stands on the floor (base_z 0)."""
+        return self.base_z() == 0.0
+
     def base_name(self) -> str:
         """What base_z is the top of, in words."""
-        return "floor" if self.base_z() == 0.0 else {"table": "table top", "box": "box's top"}[self.support]
+        return "floor" if self.on_floor() else {"table": "table top", "box": "box's top"}[self.support]
 
     def check(self, at: str = "scene") -> None:
         require(self.support in SUPPORTS, f"{at}.support must be one of {', '.join(SUPPORTS)}, got {self.support!r}")

@@ -104,7 +104,7 @@ def region_mask(scene: SceneConfig, P: np.ndarray, cfg: RegistrationConfig) -> n
     from just below a raised support's top (its edges; region_below_table) or just above the
     floor (region_above_floor) up to W_box's top."""
     s = scene
-    z0 = s.base_z() + cfg.region_above_floor if s.base_z() == 0.0 else s.base_z() - cfg.region_below_table
+    z0 = s.base_z() + cfg.region_above_floor if s.on_floor() else s.base_z() - cfg.region_below_table
     m = cfg.region_margin_known if cfg.near is not None else cfg.region_margin_xy
     lo = np.array([s.bbox_min[0] - m, s.bbox_min[1] - m, z0])
     hi = np.array([s.bbox_max[0] + m, s.bbox_max[1] + m, s.bbox_max[2]])

@@ -51,29 +51,34 @@ class ScanRenderer:
         self.dirs = ray_directions(sc.sensor, 1)[0]
         self.z_far = resolve_sensor(sc.sensor).z_far
 
-    def depth(self, q) -> np.ndarray:
-        """The depth image (h, w) the sensor returns at state q (its noise and faults applied)."""
+    def _at(self, q) -> np.ndarray:
+        """Puts the robot at state q (the diagram's inputs); returns q as an array."""
         q = np.asarray(q, float)
         self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))
         self.diagram.get_input_port(1).FixValue(self.context, q)
+        return q
+
+    def _depth_data(self) -> np.ndarray:
+        """The depth image (h, w, 1) at the current state, its noise and faults applied."""
         noise = self.camera.noise
-        return np.array(self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data)[:, :, 0]
+        return self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data
+
+    def depth(self, q) -> np.ndarray:
+        """The depth image (h, w) the sensor returns at state q (its noise and faults applied)."""
+        self._at(q)
+        return np.array(self._depth_data())[:, :, 0]
 
     def organised_cloud(self, q) -> np.ndarray:
         """The (3, w h) point cloud of the state q's image, row by row (no return: NaN, +-inf)."""
-        q = np.asarray(q, float)
-        self.diagram.get_input_port(0).FixValue(self.context, self.kin.to_positions(q))
-        self.diagram.get_input_port(1).FixValue(self.context, q)
+        self._at(q)
         ctx_pc = self.to_pc.GetMyContextFromRoot(self.context)
         return np.array(self.to_pc.point_cloud_output_port().Eval(ctx_pc).xyzs())
 
     def scan(self, q) -> Scan:
         q = np.asarray(q, float)
         pts = clean_scan(self.organised_cloud(q))
-        noise = self.camera.noise
-        depth = self.camera.depth_image_port.Eval(noise.GetMyContextFromRoot(self.context)).data
         X = self.kin.camera_poses(q)[0]
-        return Scan(X, pts, no_return_rays(depth, X, self.dirs, self.z_far))
+        return Scan(X, pts, no_return_rays(self._depth_data(), X, self.dirs, self.z_far))
 
     def integrate(self, omap: OccupancyMap, scan: Scan) -> OccupancyMap:
         return omap.integrate(scan.origin, scan.points, self.sc.mapper.table_clearance, scan.free_rays)[0]

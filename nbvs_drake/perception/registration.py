@@ -37,6 +37,9 @@ class RegistrationConfig:
     #: m around W_box in a room or among obstacles (scene.clutter room, obstacles): the known
     #: walls and furniture are the landmarks, as the table's edges are on a table
     region_margin_known: float = 2.2
+    #: m above the floor: the region's top there (W_box's top elsewhere): a room's walls and
+    #: tall furniture above the object are landmarks too
+    region_top_known: float = 2.0
     #: the model's and the scan's downsampling beyond `near` (m): the walls and furniture of a
     #: room are big planes, a few hundred points each fix them
     far_voxel: float = 0.1
@@ -51,6 +54,12 @@ class RegistrationConfig:
     #: coarse-to-fine ICP: (downsampling voxel, max correspondence distance) per stage (m)
     stages: tuple = ((0.03, 0.15), (0.02, 0.06), (0.01, 0.02))
     max_iterations: int = 30
+    #: a stage has converged when no step component exceeds this (m, rad)
+    step_tol: float = 1e-6
+    #: the same for the stages that see beyond `near` (the coarse stage in a room, which every
+    #: grid start runs): its Cauchy-weighted steps over the walls' noisy far points creep
+    #: below 0.1 mm for many iterations, while the finer stages settle the pose anyway
+    far_step_tol: float = 1e-4
     point_sigma: float = 0.005  #: m, std of a point-to-plane residual
     min_fitness: float = 0.3  #: share of the scan with a model point within the last distance
     #: fewer region points than this (the object mostly out of view): keep the odometry
@@ -76,6 +85,13 @@ class RegistrationConfig:
     #: the first (coarse) stage, which every grid start runs: at most this many
     max_coarse_points: int = 1500
     max_view_points: int = 20000  #: the whole scan's points the free-space and see-through checks use
+    #: beyond `near` (a room's known walls and furniture): the std of a point-to-plane residual
+    #: (the Kinect's depth error at 2-3 m), the residual at which a point costs its most (a wall
+    #: this far off), and the distance within which a model point is its match (the model is
+    #: one point per far_voxel there: the plane through it, with its known normal, is the match)
+    far_sigma: float = 0.01
+    far_cap: float = 0.05
+    far_match: float = 0.15
 
 
 #: localisation.fine_stage: the last stage (scan voxel, correspondence distance, m) and the
@@ -102,12 +118,14 @@ def region_mask(scene: SceneConfig, P: np.ndarray, cfg: RegistrationConfig) -> n
     """The scan points of the registration region: W_box grown by region_margin_xy in x and y
     (region_margin_known in a room or among obstacles),
     from just below a raised support's top (its edges; region_below_table) or just above the
-    floor (region_above_floor) up to W_box's top."""
+    floor (region_above_floor) up to W_box's top (in a room or among obstacles, up to
+    region_top_known)."""
     s = scene
     z0 = s.base_z() + cfg.region_above_floor if s.on_floor() else s.base_z() - cfg.region_below_table
     m = cfg.region_margin_known if cfg.near is not None else cfg.region_margin_xy
     lo = np.array([s.bbox_min[0] - m, s.bbox_min[1] - m, z0])
-    hi = np.array([s.bbox_max[0] + m, s.bbox_max[1] + m, s.bbox_max[2]])
+    top = s.bbox_max[2] if cfg.near is None else max(s.bbox_max[2], cfg.region_top_known)
+    hi = np.array([s.bbox_max[0] + m, s.bbox_max[1] + m, top])
     return np.all((P >= lo) & (P <= hi), axis=1)
 
 
@@ -131,8 +149,13 @@ class RegistrationModel:
         return self
 
     def merged(self, P: np.ndarray, cfg: RegistrationConfig) -> "RegistrationModel":
-        """The model with the points P merged (`model_index`: downsampled, far ones coarser)."""
+        """The model with the points P merged (`model_index`: downsampled). Beyond `cfg.near`
+        (a room's walls and furniture) the model is the known environment alone, with its exact
+        normals: a scan's points there are not merged (normals estimated from points a
+        far_voxel apart point anywhere, and a match on them pulls anywhere)."""
         P = np.asarray(P, np.float32)
+        if cfg.near is not None:
+            P = P[_near_mask(P, cfg.near)]
         allp = np.concatenate([self.points, P])
         idx = model_index(allp, cfg)
         return RegistrationModel(allp[idx], np.concatenate([self.normals, np.zeros_like(P)])[idx])
@@ -147,6 +170,12 @@ def model_index(P: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
     i_near, i_far = np.flatnonzero(near), np.flatnonzero(~near)
     return np.sort(np.concatenate([i_near[voxel_downsample_index(P[i_near], cfg.model_voxel)],
                                    i_far[voxel_downsample_index(P[i_far], cfg.far_voxel)]]))
+
+
+def _inside_box(P: np.ndarray, box, tol: float) -> np.ndarray:
+    """Whether each point lies in the (yawed) box grown by tol."""
+    local = (np.asarray(P, float) - np.asarray(box.center, float)) @ rot_z(box.yaw)
+    return np.all(np.abs(local) <= 0.5 * np.asarray(box.size, float) + tol, axis=1)
 
 
 def _near_mask(P: np.ndarray, near: tuple) -> np.ndarray:
@@ -181,13 +210,22 @@ def environment_model(scene: SceneConfig, cfg: RegistrationConfig) -> Registrati
     registered against before any scan is merged. The robot knows this environment (the
     planner checks collisions with it), and its straight edges fix the pose where the object
     alone cannot (a body of revolution seen from one side)."""
-    from ..world.scene import environment_boxes
-    faces = [box_surface_points(b.center, b.size, b.yaw, cfg.model_voxel)
-             for b in environment_boxes(scene) if b.name != "floor"]
+    from ..world.scene import ROOM_HALF, environment_boxes
+    boxes = [b for b in environment_boxes(scene) if b.name != "floor"]
+    faces = [box_surface_points(b.center, b.size, b.yaw, cfg.model_voxel) for b in boxes]
     if not faces:
         return RegistrationModel()
     P, N = np.concatenate([f[0] for f in faces]), np.concatenate([f[1] for f in faces])
     keep = region_mask(scene, P, cfg)
+    if cfg.near is not None:
+        # a room's or the obstacles' model is one point per far_voxel away from the object:
+        # there a face no camera sees (a wall's outer face, a cabinet's back against the wall)
+        # would share voxels with the face it backs onto and lend it its normal
+        owner = np.repeat(np.arange(len(boxes)), [len(f[0]) for f in faces])
+        for k, b in enumerate(boxes):
+            keep &= ~((owner != k) & _inside_box(P, b, 1e-3))
+        if scene.clutter == "room":
+            keep &= np.all(np.abs(P[:, :2]) <= ROOM_HALF + 1e-6, axis=1)
     P, N = P[keep], N[keep]
     idx = model_index(P, cfg)
     return RegistrationModel(P[idx], N[idx])
@@ -341,6 +379,20 @@ def _downsample(P: np.ndarray, voxel: float) -> np.ndarray:
     return np.asarray(pc.voxel_down_sample(voxel).points)
 
 
+def _point_to_plane(xi, x, n, q, sigma):
+    """The Gauss-Newton terms (J^T W J, J^T W r) of points x (M, 3) matched to planes through q
+    (M, 3) with normals n (M, 3), at residual std sigma. Cauchy weights: a wrong
+    correspondence's pull fades with its residual (Huber weights keep it constant, and at the
+    coarse stage's 15 cm the many wrong matches of a partial overlap dragged even the true
+    pose off)."""
+    r = np.sum(n * (x - q), axis=1)
+    rx, ry = x[:, 0] - xi[0], x[:, 1] - xi[1]
+    J = np.stack([n[:, 0], n[:, 1], n[:, 0] * -ry + n[:, 1] * rx], axis=1)
+    w = 1.0 / (1.0 + (r / (2.0 * sigma)) ** 2)
+    s2 = sigma ** 2
+    return (J * w[:, None]).T @ J / s2, (J * w[:, None]).T @ r / s2
+
+
 class PlanarIcp:
     """The planar MAP point-to-plane problem of one scan against one model (see
     `register_scan`): `refine(xi)` runs the coarse-to-fine Gauss-Newton from xi, `evaluate(xi)`
@@ -363,31 +415,46 @@ class PlanarIcp:
         self.coarse = {(v, d): (_thin(_stage_points(scan_pts, v, cfg, d), cap)
                                 if v > cfg.model_voxel or d >= cfg.far_voxel else self.fine)
                        for cap, (v, d) in zip(caps, cfg.stages)}
+        #: the scan beyond `near` (a room's walls and furniture, known exactly), at far_voxel: the
+        #: finer stages and the fit match it too, point to plane, so a pose that tucks the
+        #: object's new surface into the model pays for every wall it moves
+        self.far = np.zeros((0, 3))
+        if cfg.near is not None:
+            P = np.asarray(scan_pts, float)
+            self.far = _thin(_downsample(P[~_near_mask(P, cfg.near)], cfg.far_voxel), cfg.max_coarse_points)
+
+    def _far_matches(self, xi):
+        """(points (M, 3), their model matches (M, 3) and the matches' normals (M, 3), how many
+        found no match) of the far points at correction xi, matched within cfg.far_match."""
+        X = Correction(*xi).apply_points(self.far)
+        d, j = self.tree.query(X, distance_upper_bound=self.cfg.far_match)
+        ok = np.isfinite(d)
+        return X[ok], self.Q[j[ok]], self.NQ[j[ok]], int(np.count_nonzero(~ok))
 
     def refine(self, xi, stages=None):
-        cfg, Q, NQ, Cinv = self.cfg, self.Q, self.NQ, self.Cinv
-        s2 = cfg.point_sigma ** 2
+        cfg, Cinv = self.cfg, self.Cinv
         xi = np.array(xi, float)
         for voxel, dist in (cfg.stages if stages is None else stages):
             P = self.coarse[voxel, dist]
+            walls = len(self.far) > 0 and dist < cfg.far_voxel  # (the coarse stage has them in P)
+            tol = cfg.far_step_tol if cfg.near is not None and dist >= cfg.far_voxel else cfg.step_tol
             for _ in range(cfg.max_iterations):
                 X = Correction(*xi).apply_points(P)
                 d, j = self.tree.query(X, distance_upper_bound=dist)
                 ok = np.isfinite(d)
-                if ok.sum() < 10:
+                terms = []
+                if ok.sum() >= 10:
+                    terms.append(_point_to_plane(xi, X[ok], self.NQ[j[ok]], self.Q[j[ok]], cfg.point_sigma))
+                if walls:  # the known walls and furniture, at their own sigma
+                    x, q, n, _ = self._far_matches(xi)
+                    if len(x) >= 10:
+                        terms.append(_point_to_plane(xi, x, n, q, cfg.far_sigma))
+                if not terms:
                     break
-                x, q, n = X[ok], Q[j[ok]], NQ[j[ok]]
-                r = np.sum(n * (x - q), axis=1)
-                rx, ry = x[:, 0] - xi[0], x[:, 1] - xi[1]
-                J = np.stack([n[:, 0], n[:, 1], n[:, 0] * -ry + n[:, 1] * rx], axis=1)
-                # Cauchy weights: a wrong correspondence's pull fades with its residual (Huber
-                # weights keep it constant, and at the coarse stage's 15 cm the many wrong
-                # matches of a partial overlap dragged even the true pose off)
-                w = 1.0 / (1.0 + (r / (2.0 * cfg.point_sigma)) ** 2)
-                A = (J * w[:, None]).T @ J / s2 + Cinv
-                step = -np.linalg.solve(A, (J * w[:, None]).T @ r / s2 + Cinv @ xi)
+                A = sum(t[0] for t in terms) + Cinv
+                step = -np.linalg.solve(A, sum(t[1] for t in terms) + Cinv @ xi)
                 xi = xi + step
-                if np.abs(step).max() < 1e-6:
+                if np.abs(step).max() < tol:
                     break
         return xi
 
@@ -413,13 +480,22 @@ class PlanarIcp:
         rs = r[structure]
         cap = cfg.residual_cap or dmax
         cost = float(np.sum(np.minimum(rs * rs, cap * cap)) / s2 + xi @ self.Cinv @ xi)
+        inliers, total = int(np.count_nonzero(ok)), len(ok)
+        if len(self.far):  # the known walls and furniture: a point off its plane costs up to far_cap
+            x, q, n, unmatched = self._far_matches(xi)  # (everything there is known: unmatched is off)
+            rf = np.sum(n * (x - q), axis=1)
+            inliers += int(np.count_nonzero(np.abs(rf) < 2.0 * cfg.far_sigma))
+            total += len(self.far)
+            rf = rf[np.abs(n[:, 2]) < 0.7]
+            cost += float(np.sum(np.minimum(rf * rf, cfg.far_cap ** 2)) + unmatched * cfg.far_cap ** 2) \
+                / cfg.far_sigma ** 2
         if self.free_at is not None:  # surface in known free space costs like an unmatched point
             cost += float(np.count_nonzero(self.free_at(X))) * dmax * dmax / s2
         if self.view_pts is not None:  # so does a return seen through a known solid
             o = corr.apply_points(np.asarray(self.view.origin, float)[None])[0]
             bad = self.view.solids.seen_through(o, corr.apply_points(self.view_pts), cfg.see_through_tol)
             cost += float(np.count_nonzero(bad)) * dmax * dmax / s2
-        fit = float(ok.mean())
+        fit = inliers / total if total else 0.0
         rmse = float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else 0.0
         return cost, fit, rmse
 

@@ -15,7 +15,8 @@ class MeshError(NbvsError):
 
 
 class RunExistsError(NbvsError):
-    """The output folder holds a finished run (its summary.json) and overwriting was not asked for."""
+    """The output folder holds a finished run (its summary.json) and overwriting was not asked
+    for, or another run is writing it (its lock), or it cannot be made."""
 
 
 class Interrupted(KeyboardInterrupt):

@@ -440,12 +440,8 @@ class Batch:
 
     # ---- the lock: one batch per experiment folder (released by the kernel on any death)
     def lock(self):
-        import fcntl
-        self._lock = open(self.dir / ".lock", "w")
-        try:
-            fcntl.flock(self._lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise ExperimentError(f"another `nbvs experiment` batch is running in {self.dir}") from None
+        from ..files import FolderLock
+        self._lock = FolderLock(self.dir, ExperimentError, "another `nbvs experiment` batch")
 
     def event(self, msg: str):
         with open(self.dir / "runner.log", "a") as f:

@@ -125,8 +125,8 @@ def incidence_angles(z: np.ndarray, fx: float, fy: float, cx: float, cy: float) 
     du[:, 1:-1] = P[:, 2:] - P[:, :-2]
     dv[1:-1, :] = P[2:, :] - P[:-2, :]
     n = np.cross(du, dv)
-    ray = P / np.linalg.norm(P, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # zero-depth pixels: NaN, as missing ones
+        ray = P / np.linalg.norm(P, axis=-1, keepdims=True)
         c = np.abs(np.sum(n * ray, axis=-1)) / np.linalg.norm(n, axis=-1)
         return np.arccos(np.clip(c, 0.0, 1.0))
 

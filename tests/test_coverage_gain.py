@@ -132,6 +132,12 @@ tenth of the same voxels);
     face = np.abs(counts[sel] / m0.spec.res ** 2 / D - 1)  # the points per voxel face: varies with the cut
     assert np.quantile(err, 0.9) < 0.4 and np.quantile(face, 0.9) > 0.6
     assert np.all(d[counts == 0] == 0)
+    # the medians over every 9th point (the Kinect's model pixels): the same density, and every
+    # voxel with points still gets one, also where none of those falls
+    d9 = sample_density(m, thin=9)
+    np.testing.assert_allclose(np.median(d9[sel]), D, rtol=0.1)
+    assert np.quantile(np.abs(d9[sel] / D - 1), 0.75) < 0.4  # a median of fewer points: noisier
+    assert np.all((d9 > 0) == (counts > 0)) and np.all(d9[counts == 0] == 0)
 
 
 

@@ -519,7 +519,10 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
     `OccupancyMap.free_hits`) and, given the whole scan (`view`), every return whose ray
     passes through a known solid: partial overlaps let a wrong pose match as many points as
     the right one, but not without putting surface into known free space or seeing through
-    the table. Rejected (identity, applied=False) when the model or the scan is too small,
+    the table. In a room or among obstacles (`cfg.near`) the scan's points beyond the
+    object's surroundings (the known walls and furniture, the model there) are matched point
+    to plane in every stage and in the fit at their own sigma (`cfg.far_sigma`), and count in
+    the fitness. Rejected (identity, applied=False) when the model or the scan is too small,
     when another start ends far away with nearly the same fit (ambiguous), or when the final
     fit is poor."""
     n_model, n_scan = len(model.points), len(scan_pts)

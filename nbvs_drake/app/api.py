@@ -167,20 +167,24 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     Bad input raises an NbvsError subclass (ScenarioError, MeshError, RunExistsError) with a
     one-line message; the mission's results are the same as `nbvs reconstruct` gives.
     """
+    from ..stage_clock import SETUP, StageClock
+    clock = StageClock()  # the run's wall_s starts here
     if isinstance(overrides, str):
         overrides = (overrides,)
-    sc = _resolve_scenario(scenario, seed, tuple(overrides))
+    with clock.running(), clock.stage(SETUP, "scenario"):
+        sc = _resolve_scenario(scenario, seed, tuple(overrides))
     out = Path(out) if out is not None else Path("results") / sc.name
     if out.is_dir():
         _refuse_finished(out, overwrite)  # before anything is written there, the lock included
     with _claim_output(out):
-        _prepare_output(out, overwrite)  # again, under the lock: another run may have finished
+        with clock.running(), clock.stage(SETUP, "output_folder"):
+            _prepare_output(out, overwrite)  # again, under the lock: another run may have finished
         from ..errors import Interrupted, InterruptGuard
         from .mission import run_mission
         guard = InterruptGuard()
         try:
             with guard:
-                run_mission(sc, out, verbose=verbose, meshcat=meshcat)
+                run_mission(sc, out, verbose=verbose, meshcat=meshcat, clock=clock)
         except BaseException as e:
             if not guard.was_interrupt(e):
                 raise

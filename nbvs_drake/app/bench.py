@@ -600,7 +600,8 @@ def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int
         cloud = r.organised_cloud(q)
         pts = clean_scan(cloud)
         reg = clean_scan(binned_cloud(cloud, (rs.width, rs.height), rs.model_binning))
-        model = R.environment_model(sc.scene, cfg).merged(reg[R.region_mask(sc.scene, reg, cfg)], cfg)
+        model = R.environment_model(sc.scene, cfg).merged(reg[R.region_mask(sc.scene, reg, cfg)], cfg,
+                                                          kin.camera_poses(q)[0][:3, 3])
         omap = OccupancyMap.for_scenario(sc).integrate(kin.camera_poses(q)[0][:3, 3], pts,
                                                         sc.mapper.table_clearance)[0]
         for _ in range(n_scans):
@@ -627,7 +628,7 @@ def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int
                 if name == "binned":
                     fixed = c.apply_points(P)
             t = time.perf_counter()
-            model = model.merged(fixed[R.region_mask(sc.scene, fixed, cfg)], cfg)
+            model = model.merged(fixed[R.region_mask(sc.scene, fixed, cfg)], cfg, X[:3, 3])
             row["merge_s"] = time.perf_counter() - t
             t = time.perf_counter()
             omap = omap.integrate(X[:3, 3], c.apply_points(full), sc.mapper.table_clearance)[0]
@@ -652,6 +653,43 @@ def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int
     }
 
 
+#: the missions `nbvs bench mission` runs: (scenario, settings, seeds)
+MISSIONS = (("cluttered_room_nbvs", ("scene.object.kind=bunny", "scene.object.size=null"), (1, 2, 3)),
+            ("teapot_eu_mu_nbvs", (), (1,)))
+
+
+def bench_mission(max_scans: int | None = None) -> dict:
+    """Whole missions under Table 4's noise, one after the other in this process: the
+    cluttered room with this project's planner (the bunny, seeds 1-3) and the open scene
+    (teapot_eu_mu_nbvs, seed 1). Per run: wall_s (from `reconstruct`'s entry to the final
+    summary.json), its disjoint stages (stages_s, with `unattributed`) and the share of wall_s
+    they name, the planning per iteration, coverage, collisions and the last registration's
+    error. `max_scans`: a shorter mission (a quick look; the full one is the benchmark)."""
+    from .api import reconstruct
+    runs = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, settings, seeds in MISSIONS:
+            for seed in seeds:
+                over = list(settings) + ([f"mission.max_scans={max_scans}"] if max_scans else [])
+                s = reconstruct(name, out=Path(tmp) / f"{name}_s{seed}", seed=seed, overrides=over).summary
+                st = s["stages_s"]
+                runs.append({
+                    "scenario": name, "seed": seed, "settings": over, "wall_s": round(s["wall_s"], 2),
+                    "named_share": round(1.0 - st["unattributed"] / s["wall_s"], 4), "stages_s": st,
+                    "plan_s_per_iteration": s["plan_s_per_iteration"],
+                    "planning_all_s_per_iteration": s["planning_all_s_per_iteration"],
+                    "scans": s["scans"], "coverage": s["coverage"], "collisions": s["collisions"],
+                    "last_registered_m": s["pose_error"].get("last_registered_m"),
+                })
+    out = {"runs": runs}
+    for name, _, _ in MISSIONS:
+        mine = [r for r in runs if r["scenario"] == name]
+        out[f"{name}_wall_s_mean"] = round(float(np.mean([r["wall_s"] for r in mine])), 2)
+        out[f"{name}_coverage_mean"] = round(float(np.mean([r["coverage"] for r in mine])), 6)
+    out["named_share_min"] = min(r["named_share"] for r in runs)
+    return out
+
+
 def main(args) -> int:
     if args.what == "visibility":
         res = (bench_visibility(n_views=args.views) if args.sensor == "sr4000"
@@ -668,6 +706,8 @@ def main(args) -> int:
         res = bench_oracle()
     elif args.what == "registration":
         res = bench_registration()
+    elif args.what == "mission":
+        res = bench_mission(args.max_scans)
     else:
         raise SystemExit(f"unknown benchmark {args.what!r}")
     print(json.dumps(res, indent=None if args.json else 2))

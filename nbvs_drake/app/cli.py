@@ -131,11 +131,13 @@ def main(argv=None) -> int:
     d.set_defaults(func=_cmd_diagram)
     b = sub.add_parser("bench", help="benchmarks, printing JSON")
     b.add_argument("what", choices=["visibility", "planning", "motion", "collision", "prediction", "oracle",
-                                    "registration"])
+                                    "registration", "mission"])
     b.add_argument("--json", action="store_true", help="one line of JSON")
     b.add_argument("--views", type=int, default=400, help="views per timing batch")
     b.add_argument("--sensor", default="sr4000", choices=["sr4000", "kinect"],
                    help="visibility: the sensor (kinect: its planner model against every pixel)")
+    b.add_argument("--max-scans", type=int, default=None,
+                   help="mission: shorter missions (a quick look; the benchmark is the full ones)")
     b.set_defaults(func=lambda a: __import__("nbvs_drake.app.bench", fromlist=["main"]).main(a))
     e = sub.add_parser("experiment", help="run a paper's experiment (many runs) and write its table and figures",
                        description="nbvs experiment NAME... runs what is missing of each experiment into "

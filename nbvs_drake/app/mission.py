@@ -14,6 +14,7 @@ import numpy as np
 from ..config import Scenario
 from ..files import write_atomic
 from ..mapping.occupancy import write_ply
+from ..stage_clock import EVALUATION, MAP, OUTPUTS, SETUP, SIMULATOR, StageClock
 from ..systems.mission_recorder import IterationLog
 from .diagram import build_mission_diagram
 
@@ -101,158 +102,199 @@ def prediction_summary(records: list[dict]) -> dict:
             "prediction_pairs": fit["pairs"], "blind_scans": len(blind), "blind_scan_list": blind}
 
 
-def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat=None) -> dict:
-    """`meshcat`: a pydrake Meshcat that shows the run live (robot, map, plans), or None."""
-    # Open3D (registration, surface fusion) before the first scan: a Ctrl-C that lands in its
-    # import mid-run leaves it half initialised, and it then exits with status 1 at shutdown
-    import open3d  # noqa: F401
-    from pydrake.systems.analysis import Simulator
-    from pydrake.systems.framework import EventStatus
+def planning_per_iteration(records: list[dict]) -> dict:
+    """The NBV plan per iteration (plan_s_per_iteration) and all planning per iteration
+    (planning_all_s_per_iteration: the NBV plans with the verification and recovery planning
+    that followed them), over the iterations that planned a path."""
+    plans = [r["plan"] for r in records if (r.get("plan") or {}).get("status") == "ok"]
+    if not plans:
+        return {"plan_s_per_iteration": None, "planning_all_s_per_iteration": None}
+    plan = sum(p.get("plan_s") or 0.0 for p in plans)
+    recovery = sum((r.get("plan") or {}).get("recovery_s") or 0.0 for r in records)
+    return {"plan_s_per_iteration": round(plan / len(plans), 4),
+            "planning_all_s_per_iteration": round((plan + recovery) / len(plans), 4)}
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    t_start = time.perf_counter()
-    # the resolved scenario (seed, defaults filled in): `nbvs reconstruct --scenario
-    # OUT/scenario.yaml` repeats the run
-    from pydrake.common.yaml import yaml_dump_typed
-    (out / "scenario.yaml").write_text(yaml_dump_typed(sc))
-    log = IterationLog(out / "iterations.jsonl", echo=_print_iteration if verbose else None)
-    md = build_mission_diagram(sc, out / "scene", log, meshcat=meshcat)
-    if verbose:
-        print(f"nbvs: scenario {sc.name!r}, seed {sc.seed}, object {sc.scene.object.kind}, "
-              f"planner {sc.planner.strategy_word()}, writing to {out}", flush=True)
-    diagram = md.diagram
-    sim = Simulator(diagram)
-    ctx = sim.get_mutable_context()
-    planner = md.systems["planner"]
-    rec = md.systems["recorder"]
-    monitor_sys = md.systems["monitor"]
-    halted = {}
 
-    def monitor(root_context):
-        pctx = planner.GetMyContextFromRoot(root_context)
-        stopped = planner.GetOutputPort("stopped").Eval(pctx)[0] > 0.5
-        if stopped and rec.written() >= planner.GetOutputPort("report").Eval(pctx).scan:
-            return EventStatus.ReachedTermination(planner, "mission finished")
-        if sc.mission.on_collision == "stop":
-            counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(root_context))
-            if counts[0] > 0:
-                halted["t"] = root_context.get_time()
-                return EventStatus.ReachedTermination(monitor_sys, "collision")
-        return EventStatus.Succeeded()
+def _finish_clock(summary: dict, clock: StageClock):
+    """wall_s (from the clock's start to now) and its disjoint stages (stages_s, with
+    `unattributed`), each stage's parts below it (stage_parts_s)."""
+    summary["wall_s"] = time.perf_counter() - clock.t0
+    summary["stages_s"], summary["stage_parts_s"] = clock.report(summary["wall_s"])
 
-    sim.set_monitor(monitor)
-    sim.Initialize()
-    sim.AdvanceTo(sc.mission.max_sim_time)
-    pctx = planner.GetMyContextFromRoot(ctx)
-    report = planner.GetOutputPort("report").Eval(pctx)
-    stop_reason = "collision" if halted else (report.stop_reason or "max_sim_time")
-    mapper = md.systems["mapper"]
-    omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(ctx))
-    counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))
 
-    write_ply(out / "model.ply", omap.object_points)
-    t_rec = time.perf_counter()
-    fusion = md.systems["surface_fusion"]
-    mesh_V, mesh_T = fusion.GetOutputPort("mesh").Eval(fusion.GetMyContextFromRoot(ctx))
+def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat=None,
+                clock: StageClock | None = None) -> dict:
+    """`meshcat`: a pydrake Meshcat that shows the run live (robot, map, plans), or None.
+    `clock`: the run's stage clock, started where its time begins (`reconstruct`'s entry);
+    None: one started here. summary.json's `wall_s` runs from the clock's start to the final
+    summary.json, and `stages_s` splits it into the clock's disjoint stages (stage_clock.py)."""
+    clock = clock or StageClock()
+    with clock.running():
+        return _run_mission(sc, Path(out_dir), verbose, meshcat, clock)
+
+
+def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageClock) -> dict:
+    with clock.stage(SETUP, "diagram"):
+        # Open3D (registration, surface fusion) before the first scan: a Ctrl-C that lands in its
+        # import mid-run leaves it half initialised, and it then exits with status 1 at shutdown
+        import open3d  # noqa: F401
+        from pydrake.systems.analysis import Simulator
+        from pydrake.systems.framework import EventStatus
+
+        out.mkdir(parents=True, exist_ok=True)
+        # the resolved scenario (seed, defaults filled in): `nbvs reconstruct --scenario
+        # OUT/scenario.yaml` repeats the run
+        from pydrake.common.yaml import yaml_dump_typed
+        (out / "scenario.yaml").write_text(yaml_dump_typed(sc))
+        log = IterationLog(out / "iterations.jsonl", echo=_print_iteration if verbose else None)
+        md = build_mission_diagram(sc, out / "scene", log, meshcat=meshcat)
+        if verbose:
+            print(f"nbvs: scenario {sc.name!r}, seed {sc.seed}, object {sc.scene.object.kind}, "
+                  f"planner {sc.planner.strategy_word()}, writing to {out}", flush=True)
+        sim = Simulator(md.diagram)
+        ctx = sim.get_mutable_context()
+        planner = md.systems["planner"]
+        rec = md.systems["recorder"]
+        monitor_sys = md.systems["monitor"]
+        halted = {}
+
+        def monitor(root_context):
+            pctx = planner.GetMyContextFromRoot(root_context)
+            stopped = planner.GetOutputPort("stopped").Eval(pctx)[0] > 0.5
+            if stopped and rec.written() >= planner.GetOutputPort("report").Eval(pctx).scan:
+                return EventStatus.ReachedTermination(planner, "mission finished")
+            if sc.mission.on_collision == "stop":
+                counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(root_context))
+                if counts[0] > 0:
+                    halted["t"] = root_context.get_time()
+                    return EventStatus.ReachedTermination(monitor_sys, "collision")
+            return EventStatus.Succeeded()
+
+        sim.set_monitor(monitor)
+        sim.Initialize()
+    with clock.stage(SIMULATOR):
+        sim.AdvanceTo(sc.mission.max_sim_time)
+        pctx = planner.GetMyContextFromRoot(ctx)
+        report = planner.GetOutputPort("report").Eval(pctx)
+        stop_reason = "collision" if halted else (report.stop_reason or "max_sim_time")
+        mapper = md.systems["mapper"]
+        omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(ctx))
+        counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))
+
+    with clock.stage(OUTPUTS, "model"):
+        write_ply(out / "model.ply", omap.object_points)
+    with clock.stage(MAP, "surface_fusion"):  # the TSDF mesh of the registered scans
+        fusion = md.systems["surface_fusion"]
+        mesh_V, mesh_T = fusion.GetOutputPort("mesh").Eval(fusion.GetMyContextFromRoot(ctx))
     from ..perception.reconstruction import mesh_metrics, point_metrics, write_mesh_ply
-    write_mesh_ply(out / "model_mesh.ply", mesh_V, mesh_T)
-    gt_V, gt_T, vox = md.mesh.vertices, md.mesh.triangles, sc.mapper.voxel_size
-    reconstruction = {
-        "points": point_metrics(omap.object_points, gt_V, gt_T, md.gt_points, vox),
-        "mesh": mesh_metrics(mesh_V, mesh_T, gt_V, gt_T, md.gt_points, vox, np.random.default_rng([sc.seed, 23])),
-        "mesh_vertices": int(len(mesh_V)), "mesh_triangles": int(len(mesh_T)),
-    }
+    with clock.stage(OUTPUTS, "model"):
+        write_mesh_ply(out / "model_mesh.ply", mesh_V, mesh_T)
+    t_rec = time.perf_counter()
+    with clock.stage(EVALUATION, "reconstruction"):
+        gt_V, gt_T, vox = md.mesh.vertices, md.mesh.triangles, sc.mapper.voxel_size
+        reconstruction = {
+            "points": point_metrics(omap.object_points, gt_V, gt_T, md.gt_points, vox),
+            "mesh": mesh_metrics(mesh_V, mesh_T, gt_V, gt_T, md.gt_points, vox, np.random.default_rng([sc.seed, 23])),
+            "mesh_vertices": int(len(mesh_V)), "mesh_triangles": int(len(mesh_T)),
+        }
     t_rec = time.perf_counter() - t_rec
     ceiling = None
     if sc.mission.coverage_ceiling:
         from ..planning.oracle import coverage_ceiling
-        ceiling = coverage_ceiling(sc, md.kin, md.mesh, str(out / "scene" / "object.obj"))
-    omap.save_npz(out / "map.npz")
-    from ..mapping.octomap_io import write_bt
-    write_bt(omap, out / "map.bt")
+        with clock.stage(EVALUATION, "coverage_ceiling"):
+            ceiling = coverage_ceiling(sc, md.kin, md.mesh, str(out / "scene" / "object.obj"))
     records = log.records
-    from ..outputs.plots import plot_coverage
-    plot_coverage(records, out / "coverage.png", title=f"{sc.name} (seed {sc.seed})")
+    with clock.stage(OUTPUTS, "map"):
+        omap.save_npz(out / "map.npz")
+        from ..mapping.octomap_io import write_bt
+        write_bt(omap, out / "map.bt")
+    with clock.stage(OUTPUTS, "coverage_png"):
+        from ..outputs.plots import plot_coverage
+        plot_coverage(records, out / "coverage.png", title=f"{sc.name} (seed {sc.seed})")
+    with clock.stage(OUTPUTS, "summary"):
+        collided, executed = int(counts[0]), int(counts[1])
+        plans = [r["plan"] for r in records if r["plan"].get("status") == "ok"]
 
-    collided, executed = int(counts[0]), int(counts[1])
-    plans = [r["plan"] for r in records if r["plan"].get("status") == "ok"]
+        def stage_total(key):
+            return float(sum(r["plan"].get("times", {}).get(key, 0.0) for r in records))
 
-    def stage_total(key):
-        return float(sum(r["plan"].get("times", {}).get(key, 0.0) for r in records))
-
-    collision = None
-    if halted:  # the trajectory that collided never reached a scan: keep it here
-        kplant = md.systems["kinematic_plant"]
-        q_stop = kplant.GetOutputPort("state").Eval(kplant.GetMyContextFromRoot(ctx))
-        # the state the monitor found in contact (the plant has moved one control step on since)
-        q_hit = monitor_sys.GetOutputPort("collision_state").Eval(monitor_sys.GetMyContextFromRoot(ctx))
-        collision = {"trajectory": executed, "t_sim": round(halted["t"], 3),
-                     "true_state": [round(float(v), 6) for v in q_stop],
-                     "contact_state": [round(float(v), 6) for v in q_hit],
-                     "executed_path": rec.unfinished_path(),
-                     "contacts": monitor_sys.truth.contacts(q_hit)}
-    summary = {
-        "scenario": sc.name,
-        "seed": sc.seed,
-        "planner": sc.planner.strategy_word(),
-        "coverage": summary_cov(records, "coverage"),
-        "coverage_5mm": summary_cov(records, "coverage_5mm"),
-        "coverage_voxel": summary_cov(records, "coverage_voxel"),
-        "coverage_1cm": summary_cov(records, "coverage_1cm"),
-        "coverage_by_scan": [r["coverage"] for r in records],
-        # the share of the surface any reachable pose can see (planning/oracle.py), and ours of it
-        "coverage_ceiling": ceiling["ceiling"] if ceiling else None,
-        "coverage_of_ceiling": share_of(summary_cov(records, "coverage"), ceiling and ceiling["ceiling"]),
-        # at 1 cm (a map of 3 cm voxels): the ceiling and ours of it
-        "coverage_ceiling_1cm": ceiling["ceiling_1cm"] if ceiling else None,
-        "coverage_of_ceiling_1cm": share_of(summary_cov(records, "coverage_1cm"), ceiling and ceiling["ceiling_1cm"]),
-        "scans": int(omap.scan_count),
-        "collisions": collided,
-        "executed_trajectories": executed,
-        "collision_rate": collided / executed if executed else 0.0,
-        "stop_reason": stop_reason,
-        "collision": collision,
-        "distance": float(sum(p["factors"]["rho"] for p in plans)),
-        # accuracy, completeness, Chamfer, precision / recall / F-score at 3 mm, 5 mm and one voxel
-        # (reconstruction.py), of the point model and of the TSDF mesh (model_mesh.ply)
-        "reconstruction": reconstruction,
-        "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
-        "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
-        "reachable_unknown_voxels": records[-1].get("reachable_unknown_voxels") if records else None,
-        "object_points": int(len(omap.object_points)),
-        "relocalization": sc.localisation.method,
-        "pose_error": pose_errors(records),
-        **(recovery_counts(records) if sc.localisation.verified_views is not None else {}),
-        **prediction_summary(records),
-        "sim_time_s": round(ctx.get_time(), 3),
-        "times_s": {
-            "plan": float(sum(p.get("plan_s", 0.0) for p in plans)),
-            "generate": stage_total("generate_s"),
-            "position_filter": stage_total("position_s"),
-            "visibility": stage_total("visibility_s"),
-            # the path search and every collision check (the expected utility's rollouts' included)
-            "motion_planning": stage_total("motion_planning_s"),
-            # candidate views (and the expected utility's rollouts' final views) scored
-            "view_evaluation": stage_total("view_evaluation_s"),
-            "map_update": float(sum(r["scan"].get("update_s", 0.0) for r in records)),
-            "registration": float(sum(r["scan"].get("register_s", 0.0) for r in records)),
-            "render": float(sum(r["scan"].get("render_s", 0.0) for r in records)),
-            "coverage_eval": float(sum(r["coverage_s"] for r in records)),
-            "reconstruction": t_rec,
-            "coverage_ceiling": ceiling["seconds"] if ceiling and not ceiling.get("cached") else 0.0,
-        },
-        "wall_s": time.perf_counter() - t_start,
-    }
-    _write_json(out / "summary.json", summary)
+        collision = None
+        if halted:  # the trajectory that collided never reached a scan: keep it here
+            kplant = md.systems["kinematic_plant"]
+            q_stop = kplant.GetOutputPort("state").Eval(kplant.GetMyContextFromRoot(ctx))
+            # the state the monitor found in contact (the plant has moved one control step on since)
+            q_hit = monitor_sys.GetOutputPort("collision_state").Eval(monitor_sys.GetMyContextFromRoot(ctx))
+            collision = {"trajectory": executed, "t_sim": round(halted["t"], 3),
+                         "true_state": [round(float(v), 6) for v in q_stop],
+                         "contact_state": [round(float(v), 6) for v in q_hit],
+                         "executed_path": rec.unfinished_path(),
+                         "contacts": monitor_sys.truth.contacts(q_hit)}
+        summary = {
+            "scenario": sc.name,
+            "seed": sc.seed,
+            "planner": sc.planner.strategy_word(),
+            "coverage": summary_cov(records, "coverage"),
+            "coverage_5mm": summary_cov(records, "coverage_5mm"),
+            "coverage_voxel": summary_cov(records, "coverage_voxel"),
+            "coverage_1cm": summary_cov(records, "coverage_1cm"),
+            "coverage_by_scan": [r["coverage"] for r in records],
+            # the share of the surface any reachable pose can see (planning/oracle.py), and ours of it
+            "coverage_ceiling": ceiling["ceiling"] if ceiling else None,
+            "coverage_of_ceiling": share_of(summary_cov(records, "coverage"), ceiling and ceiling["ceiling"]),
+            # at 1 cm (a map of 3 cm voxels): the ceiling and ours of it
+            "coverage_ceiling_1cm": ceiling["ceiling_1cm"] if ceiling else None,
+            "coverage_of_ceiling_1cm": share_of(summary_cov(records, "coverage_1cm"),
+                                                ceiling and ceiling["ceiling_1cm"]),
+            "scans": int(omap.scan_count),
+            "collisions": collided,
+            "executed_trajectories": executed,
+            "collision_rate": collided / executed if executed else 0.0,
+            "stop_reason": stop_reason,
+            "collision": collision,
+            "distance": float(sum(p["factors"]["rho"] for p in plans)),
+            # accuracy, completeness, Chamfer, precision / recall / F-score at 3 mm, 5 mm and one voxel
+            # (reconstruction.py), of the point model and of the TSDF mesh (model_mesh.ply)
+            "reconstruction": reconstruction,
+            "remaining_unknown_m3": records[-1]["remaining_unknown_m3"] if records else None,
+            "unknown_voxels": records[-1]["unknown_voxels"] if records else None,
+            "reachable_unknown_voxels": records[-1].get("reachable_unknown_voxels") if records else None,
+            "object_points": int(len(omap.object_points)),
+            "relocalization": sc.localisation.method,
+            "pose_error": pose_errors(records),
+            **(recovery_counts(records) if sc.localisation.verified_views is not None else {}),
+            **prediction_summary(records),
+            "sim_time_s": round(ctx.get_time(), 3),
+            "times_s": {
+                "plan": float(sum(p.get("plan_s", 0.0) for p in plans)),
+                "generate": stage_total("generate_s"),
+                "position_filter": stage_total("position_s"),
+                "visibility": stage_total("visibility_s"),
+                # the path search and every collision check (the expected utility's rollouts' included)
+                "motion_planning": stage_total("motion_planning_s"),
+                # candidate views (and the expected utility's rollouts' final views) scored
+                "view_evaluation": stage_total("view_evaluation_s"),
+                "map_update": float(sum(r["scan"].get("update_s", 0.0) for r in records)),
+                "registration": float(sum(r["scan"].get("register_s", 0.0) for r in records)),
+                "render": float(sum(r["scan"].get("render_s", 0.0) for r in records)),
+                "coverage_eval": float(sum(r["coverage_s"] for r in records)),
+                "reconstruction": t_rec,
+                "coverage_ceiling": ceiling["seconds"] if ceiling and not ceiling.get("cached") else 0.0,
+            },
+            **planning_per_iteration(records),
+        }
+        _finish_clock(summary, clock)
+        _write_json(out / "summary.json", summary)
     # paths.png and replay.html after summary.json: a failure there cannot lose the results
-    from ..outputs.visual_outputs import write_visual_outputs
-    vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
-                               verbose=verbose, collision=collision, model_mesh=(mesh_V, mesh_T))
-    summary["times_s"]["visual_outputs"] = vis["seconds"]
-    if vis["errors"]:
-        summary["visual_output_errors"] = vis["errors"]
-    _write_json(out / "summary.json", summary)
+    with clock.stage(OUTPUTS, "visual_outputs"):
+        from ..outputs.visual_outputs import write_visual_outputs
+        vis = write_visual_outputs(out, sc, records, getattr(rec, "maps", None), out / "scene" / "object.obj",
+                                   verbose=verbose, collision=collision, model_mesh=(mesh_V, mesh_T))
+    with clock.stage(OUTPUTS, "summary"):
+        summary["times_s"]["visual_outputs"] = vis["seconds"]
+        if vis["errors"]:
+            summary["visual_output_errors"] = vis["errors"]
+        _finish_clock(summary, clock)
+        _write_json(out / "summary.json", summary)
     if verbose:
         print(f"done: coverage {summary['coverage']:.3f} after {summary['scans']} scans, "
               f"{collided} collisions in {executed} trajectories, stop: {stop_reason}, "

@@ -54,12 +54,17 @@ def _box_triangles(center, size, yaw):
 class TruthScene:
     """The true scene for ray casting: the object mesh and the environment's boxes (Open3D
     RaycastingScene); `object_hits` gives the returns of a camera pose that land on the object
-    within the sensor's range (the boxes only occlude)."""
+    within the sensor's range (the boxes only occlude). A sensor with faults (the Kinect's
+    `DepthFaults`) returns nothing where they are certain, as its scans do: at grazing
+    incidence (the angle between the ray and the true surface normal over grazing_deg) and in
+    the projector's shadow (world.sensor.projector_shadow on the grid of rays, the baseline in
+    its columns); its noise does not change what is seeable and is left out."""
 
     def __init__(self, sc: Scenario, mesh: ObjectMesh, stride: int = 1):
         import open3d as o3d
 
         from ..world.scene import environment_boxes
+        from ..world.sensor import intrinsics
         self.scene = o3d.t.geometry.RaycastingScene()
         self.object_id = self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
                                                   o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)))
@@ -67,6 +72,11 @@ class TruthScene:
             V, T = _box_triangles(b.center, b.size, b.yaw)
             self.scene.add_triangles(o3d.core.Tensor(V.astype(np.float32)), o3d.core.Tensor(T.astype(np.uint32)))
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, stride)
+        w, h, fx, _, _, _ = intrinsics(sc.sensor)
+        faults = resolve_sensor(sc.sensor).faults
+        self.grid = (-(-h // stride), -(-w // stride))
+        self.cos_grazing = float(np.cos(np.radians(faults.grazing_deg))) if faults.grazing_deg < 90.0 else None
+        self.shadow_fb = fx * faults.baseline_m / stride  # in the grid's columns
 
     def object_hits(self, X_WC: np.ndarray) -> np.ndarray:
         import open3d as o3d
@@ -75,6 +85,13 @@ class TruthScene:
         r = self.scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(np.c_[O, D], np.float32)))
         t = r["t_hit"].numpy()
         ok = np.isfinite(t) & (t >= self.t_near) & (t <= self.t_far) & (r["geometry_ids"].numpy() == self.object_id)
+        if self.cos_grazing is not None:
+            n = r["primitive_normals"].numpy()
+            ok &= np.abs(np.sum(n * D, axis=1)) >= self.cos_grazing
+        if self.shadow_fb:
+            from ..world.sensor import projector_shadow
+            z = np.where(np.isfinite(t), t * self.dirs[:, 2], np.inf).reshape(self.grid)
+            ok &= ~projector_shadow(z, self.shadow_fb).ravel()
         return O[ok] + t[ok, None] * D[ok]
 
 
@@ -118,6 +135,8 @@ def _cache_key(sc: Scenario, mesh: ObjectMesh, n_poses: int) -> str:
          "mesh": hashlib.sha1(np.ascontiguousarray(mesh.vertices).tobytes()
                               + np.ascontiguousarray(mesh.triangles).tobytes()).hexdigest()}
     d["scene"].pop("gt_points", None)
+    if resolve_sensor(sc.sensor).faults.any():  # since the sensor's faults bound what is seeable
+        d["faults"] = 1
     return hashlib.sha1(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 

@@ -6,6 +6,7 @@ import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
 from ..planning.collision import CollisionModel
+from ..stage_clock import SIMULATOR, stage
 from ..world.state import NQ
 from .messages import ControllerStatus
 
@@ -47,7 +48,8 @@ class CollisionMonitor(LeafSystem):
         now = 0.0
         q = self._q.Eval(context)
         if not status.idle or cur > 0:  # only motion can cause new contact
-            now = 0.0 if self.truth.free(q)[0] else 1.0
+            with stage(SIMULATOR, "collision_monitor"):
+                now = 0.0 if self.truth.free(q)[0] else 1.0
         if now and not cur and last_plan > 0:
             cur = 1.0
             collided += 1

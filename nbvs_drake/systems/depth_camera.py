@@ -22,6 +22,7 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.sensors import PixelType, RgbdSensor
 
 from ..config import SensorConfig, resolve_sensor
+from ..stage_clock import SCANS, stage
 from ..world.robot import CAMERA_BODY, RobotKinematics
 from ..world.sensor import apply_depth_faults, axial_noise_sigma, camera_info, render_camera_info
 
@@ -96,7 +97,11 @@ class DepthNoise(LeafSystem):
         self.DeclareAbstractOutputPort("depth_image", lambda: AbstractValue.Make(ImageDepth32F()), self._calc)
 
     def _calc(self, context, output):
-        image = self._in.Eval(context)
+        with stage(SCANS, "render"):
+            self._calc_faulty(context, output)
+
+    def _calc_faulty(self, context, output):
+        image = self._in.Eval(context)  # (RgbdSensor renders here)
         if not self.active:
             output.set_value(image)
             return

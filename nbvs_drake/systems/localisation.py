@@ -22,6 +22,7 @@ from ..perception.registration import (
     register_scan,
     registration_config,
 )
+from ..stage_clock import REGISTRATION, VERIFICATION, stage
 from ..world.motion import REGISTERED_SIGMA, ControlSequence
 from ..world.pose import EXACT_POSE_VAR, Correction
 from ..world.robot import RobotKinematics
@@ -208,7 +209,7 @@ class Localisation(LeafSystem):
         t_register = time.perf_counter() - t1
         model = mem.model
         if integrate and (not check or icp.applied):
-            model = model.merged(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], self.reg_cfg)
+            model = model.merged(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], self.reg_cfg, X_WC[:3, 3])
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
                      register_s=round(t_register, 4), icp=icp.to_json() if icp is not None else None)
@@ -254,7 +255,10 @@ class Localisation(LeafSystem):
         if status is None:
             value.set_value(_Outcome(mem.last_scan, None))
             return
-        scan, belief, model, frames = self._register(context, mem, status)
+        with stage(REGISTRATION, "sensing_scan") as st:
+            scan, belief, model, frames = self._register(context, mem, status)
+            if belief.check:  # a localisation frame
+                st.name, st.part = VERIFICATION, "frame_registration"
         value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, model,
                                                scan if not belief.check else mem.last_scan, frames)))
 

@@ -8,6 +8,7 @@ from pydrake.systems.framework import EventStatus, LeafSystem
 
 from ..mapping.occupancy import OccupancyMap
 from ..outputs import meshcat_draw
+from ..stage_clock import OUTPUTS, stage
 from .messages import PlanReport
 
 
@@ -46,6 +47,10 @@ class MeshcatMapView(LeafSystem):
         meshcat_draw.set_wbox(meshcat, f"{meshcat_draw.ROOT}/wbox", dummy_map.wbox_min, dummy_map.wbox_max)
 
     def _publish(self, context):
+        with stage(OUTPUTS, "meshcat"):
+            self._draw(context)
+
+    def _draw(self, context):
         omap: OccupancyMap = self._map.Eval(context)
         if omap.scan_count != self._drawn_scan:
             meshcat_draw.set_map_objects(self.meshcat, f"{meshcat_draw.ROOT}/map", omap)

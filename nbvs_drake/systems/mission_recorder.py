@@ -12,6 +12,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ..mapping.occupancy import OccupancyMap
 from ..perception.evaluation import coverage, plan_prediction, scan_outcome
+from ..stage_clock import EVALUATION, OUTPUTS, stage
 from ..world.pose import state_error
 from .messages import Belief, ControllerStatus, PlanReport, ScanReport
 
@@ -118,39 +119,42 @@ class MissionRecorder(LeafSystem):
         k = report.scan
         if k <= self.written():
             return
-        omap: OccupancyMap = self._map.Eval(context)
-        scan: ScanReport = self._scan.Eval(context)
-        t = time.perf_counter()
-        cov = coverage(self.gt, omap.object_points, self.thresholds)
-        t_cov = time.perf_counter() - t
-        counts = omap.counts()
-        coll = self._coll.Eval(context)
-        now = time.perf_counter()
-        rec = {
-            "iteration": k,
-            "t_sim": round(context.get_time(), 3),
-            "coverage": cov[0], "coverage_5mm": cov[1], "coverage_voxel": cov[2], "coverage_1cm": cov[3],
-            "unknown_voxels": counts["unknown"], "reachable_unknown_voxels": omap.reachable_unknown_count(),
-            "occupied_voxels": counts["occupied"],
-            "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
-            "object_points": int(len(omap.object_points)),
-            "scan": self._with_frame_errors(scan.info),
-            "plan": {key: v for key, v in report.to_json().items()
-                     if key not in ("scan", "believed_state", "corrected_state")},
-            "true_state": [round(float(v), 6) for v in self._true.Eval(context)],
-            "believed_state": report.believed_state,
-            "corrected_state": report.corrected_state,
-            "executed_path": self.unfinished_path(),
-            "collided_trajectories": int(coll[0]), "executed_trajectories": int(coll[1]),
-            "coverage_s": t_cov,
-            "wall_s": now - self._t_last,
-        }
-        if self.maps and self.log.records:  # the plan that led to this scan: its prediction, and what came
-            prev_plan = self.log.records[-1]["plan"]
-            if prev_plan.get("status") == "ok":
-                rec["prediction"] = plan_prediction(prev_plan.get("factors", {}), omap.voxel_volume())
-            rec["outcome"] = scan_outcome(self.maps[-1], omap)
-        self._t_last = now
-        self._path = []
-        self.maps.append(omap)
-        self.log.append(rec)
+        with stage(EVALUATION, "iteration_record"):
+            omap: OccupancyMap = self._map.Eval(context)
+            scan: ScanReport = self._scan.Eval(context)
+            t = time.perf_counter()
+            with stage(EVALUATION, "coverage"):
+                cov = coverage(self.gt, omap.object_points, self.thresholds)
+            t_cov = time.perf_counter() - t
+            counts = omap.counts()
+            coll = self._coll.Eval(context)
+            now = time.perf_counter()
+            rec = {
+                "iteration": k,
+                "t_sim": round(context.get_time(), 3),
+                "coverage": cov[0], "coverage_5mm": cov[1], "coverage_voxel": cov[2], "coverage_1cm": cov[3],
+                "unknown_voxels": counts["unknown"], "reachable_unknown_voxels": omap.reachable_unknown_count(),
+                "occupied_voxels": counts["occupied"],
+                "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
+                "object_points": int(len(omap.object_points)),
+                "scan": self._with_frame_errors(scan.info),
+                "plan": {key: v for key, v in report.to_json().items()
+                         if key not in ("scan", "believed_state", "corrected_state")},
+                "true_state": [round(float(v), 6) for v in self._true.Eval(context)],
+                "believed_state": report.believed_state,
+                "corrected_state": report.corrected_state,
+                "executed_path": self.unfinished_path(),
+                "collided_trajectories": int(coll[0]), "executed_trajectories": int(coll[1]),
+                "coverage_s": t_cov,
+                "wall_s": now - self._t_last,
+            }
+            if self.maps and self.log.records:  # the plan that led to this scan: its prediction, and what came
+                prev_plan = self.log.records[-1]["plan"]
+                if prev_plan.get("status") == "ok":
+                    rec["prediction"] = plan_prediction(prev_plan.get("factors", {}), omap.voxel_volume())
+                rec["outcome"] = scan_outcome(self.maps[-1], omap)
+            self._t_last = now
+            self._path = []
+            self.maps.append(omap)
+        with stage(OUTPUTS, "iterations"):
+            self.log.append(rec)

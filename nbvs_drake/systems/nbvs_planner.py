@@ -12,6 +12,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 from ..config import MissionConfig, Scenario
 from ..mapping.occupancy import OccupancyMap
 from ..planning.interface import Planner, PlanRequest, PlanResult
+from ..stage_clock import NBV_PLAN, VERIFICATION, stage
 from ..world.motion import ControlSequence, LegRule
 from .messages import Belief, PlanReport, rounded_state
 
@@ -113,7 +114,8 @@ class NBVSPlanner(LeafSystem):
         if k <= mem.planned_for_scan:
             belief: Belief = self._belief.Eval(context)
             if belief.check and belief.frame > mem.answered_frame and self.recovery is not None:
-                state.get_mutable_abstract_state(self._mem).set_value(self._recover(mem, omap, belief))
+                with stage(VERIFICATION, "recovery_planning"):
+                    state.get_mutable_abstract_state(self._mem).set_value(self._recover(mem, omap, belief))
             return
         belief: Belief = self._belief.Eval(context)
         base = PlanReport(scan=k, believed_state=rounded_state(belief.dead_reckoned),
@@ -128,7 +130,8 @@ class NBVSPlanner(LeafSystem):
             rng = np.random.default_rng([self.seed, 1, k])
             t = time.perf_counter()
             cov = belief.covariance
-            res: PlanResult = self.planner.plan(PlanRequest(omap, belief.state, rng, cov))
+            with stage(NBV_PLAN, "plan"):
+                res: PlanResult = self.planner.plan(PlanRequest(omap, belief.state, rng, cov))
             plan_s = time.perf_counter() - t
             sigma = None
             if np.any(cov != 0):  # the belief's spread the plan started from

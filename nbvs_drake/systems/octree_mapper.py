@@ -9,6 +9,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ..config import MapperConfig, SceneConfig
 from ..mapping.occupancy import OccupancyMap
+from ..stage_clock import MAP, stage
 from .messages import RegisteredScan, ScanReport
 
 
@@ -47,7 +48,8 @@ class OctreeMapper(LeafSystem):
             return
         t1 = time.perf_counter()
         if scan.integrate:
-            new, stats = omap.integrate(scan.origin, scan.points, self.mapper.table_clearance, scan.free_rays)
+            with stage(MAP, "octree"):
+                new, stats = omap.integrate(scan.origin, scan.points, self.mapper.table_clearance, scan.free_rays)
         else:
             new, stats = omap.skipped(), {"points": int(len(scan.points)), "no_return_rays": int(len(scan.free_rays)),
                                           "object_points": 0, "voxels_updated": 0}

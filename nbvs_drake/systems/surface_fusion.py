@@ -8,6 +8,7 @@ from pydrake.systems.framework import LeafSystem
 
 from ..config import MapperConfig, SceneConfig, SensorConfig, resolve_sensor
 from ..perception.reconstruction import depth_from_points, fuse_tsdf
+from ..stage_clock import MAP, stage
 from ..world.sensor import intrinsics
 from .messages import RegisteredScan
 
@@ -65,9 +66,10 @@ class SurfaceFusion(LeafSystem):
             return
         scans = mem.scans
         if scan.integrate and len(scan.points):
-            P = np.asarray(scan.points, float)
-            P = P[np.all((P >= self._lo) & (P <= self._hi), axis=1)]
-            scans = scans + ((np.asarray(scan.pose, float), depth_from_points(P, scan.pose, *self._intr)),)
+            with stage(MAP, "surface_fusion"):
+                P = np.asarray(scan.points, float)
+                P = P[np.all((P >= self._lo) & (P <= self._hi), axis=1)]
+                scans = scans + ((np.asarray(scan.pose, float), depth_from_points(P, scan.pose, *self._intr)),)
         state.get_mutable_abstract_state(self._state).set_value(_Scans(scan.index, scans))
 
     def _calc_mesh(self, context, output):

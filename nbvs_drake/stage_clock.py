@@ -32,6 +32,10 @@ OUTPUTS = "outputs"  #: iterations.jsonl, the model, mesh, maps, plots, replay a
 UNATTRIBUTED = "unattributed"
 STAGES = (SETUP, SIMULATOR, NBV_PLAN, VERIFICATION, SCANS, REGISTRATION, MAP, EVALUATION, OUTPUTS)
 
+#: summary.json's wall-clock entries: what differs between two runs of the same seed
+WALL_CLOCK_KEYS = ("wall_s", "times_s", "stages_s", "stage_parts_s", "plan_s_per_iteration",
+                   "planning_all_s_per_iteration")
+
 _active: "StageClock | None" = None
 
 

@@ -36,7 +36,8 @@ def _snapshot(folder: Path) -> dict:
 
 
 def _strip(summary: dict) -> dict:
-    return {k: v for k, v in summary.items() if k not in ("wall_s", "times_s")}
+    from nbvs_drake.stage_clock import WALL_CLOCK_KEYS
+    return {k: v for k, v in summary.items() if k not in WALL_CLOCK_KEYS}
 
 
 # --------------------------------------------------------------------------------------

@@ -46,7 +46,8 @@ def _xy(states):
 
 def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_error: float = 0.002,
                collision: dict | None = None):
-    """Top view (x, y) of a run, after Vasquez-Gomez et al. 2017 Fig. 17: the table, W_box and the other known
+    """Top view (x, y) of a run, after Vasquez-Gomez et al. 2017 Fig. 17: the table (or the support box;
+    nothing on the floor), W_box and the other known
     obstacles (cluttered_room's chairs; their names are returned), per iteration
     the planned base path (dashed; the plan made after scan k) and the executed true path
     (solid; the motion that ended at scan k + 1) in one colour, the true base pose at each
@@ -59,16 +60,20 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     from matplotlib.patches import Polygon, Rectangle
 
     fig, ax = plt.subplots(figsize=(6.4, 6.0), dpi=110)
-    tx, ty = scene_cfg.table_size
-    ax.add_patch(Rectangle((-tx / 2, -ty / 2), tx, ty, facecolor=(0.82, 0.7, 0.55), edgecolor=(0.55, 0.4, 0.25),
-                           lw=1, zorder=0, label="table"))
+    pts = []  # everything drawn, for the limits
+    support = getattr(scene_cfg, "support", "table")
+    if support in ("table", "box"):  # what the object stands on (nothing drawn for the floor)
+        tx, ty = scene_cfg.table_size if support == "table" else scene_cfg.box_size[:2]
+        cx, cy = (0.0, 0.0) if support == "table" else scene_cfg.object.xy
+        ax.add_patch(Rectangle((cx - tx / 2, cy - ty / 2), tx, ty, facecolor=(0.82, 0.7, 0.55),
+                               edgecolor=(0.55, 0.4, 0.25), lw=1, zorder=0, label=support))
+        pts.append(np.array([[cx - tx / 2, cy - ty / 2], [cx + tx / 2, cy + ty / 2]]))
     lo, hi = scene_cfg.bbox_min, scene_cfg.bbox_max
     ax.add_patch(Rectangle((lo[0], lo[1]), hi[0] - lo[0], hi[1] - lo[1], fill=False, edgecolor="0.3", lw=1,
                            ls=":", zorder=1, label="$W_{box}$"))
     cmap = plt.get_cmap("viridis")
     n = max(len(records), 2)
     by_iter = {r.get("iteration", i + 1): r for i, r in enumerate(records)}
-    pts = []  # everything drawn, for the limits
     labelled = set()
 
     def once(key, text):
@@ -82,7 +87,7 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     from ..world.scene import environment_boxes
     obstacles = []
     for b in environment_boxes(scene_cfg):
-        if b.name == "floor" or b.name.startswith("table"):
+        if b.name == "floor" or b.name.startswith(("table", "support")):
             continue
         local = 0.5 * np.array(b.size[:2]) * np.array([(-1, -1), (1, -1), (1, 1), (-1, 1)])
         corners = np.array(b.center[:2]) + local @ rot_z(b.yaw)[:2, :2].T
@@ -135,7 +140,7 @@ def plot_paths(records: list[dict], path: Path, scene_cfg, title: str = "", min_
     if stop:
         ax.plot(stop[0], stop[1], "X", color="red", ms=11, mec="black", zorder=9, label="collision (true pose)")
         pts.append(np.array([stop[:2]]))
-    allp = np.concatenate(pts + [np.array([[-tx / 2, -ty / 2], [tx / 2, ty / 2]])])
+    allp = np.concatenate(pts + [np.array([lo[:2], hi[:2]], float)])
     pad = 0.3
     x0, x1 = allp[:, 0].min() - pad, allp[:, 0].max() + pad
     y0, y1 = allp[:, 1].min() - pad, allp[:, 1].max() + pad

@@ -33,7 +33,7 @@ _SIMULATED = {"sim_time_s", "motion_sim_s"}
 
 
 def is_wall_clock(key: str) -> bool:
-    return key in ("times", "times_s") or (key.endswith("_s") and key not in _SIMULATED)
+    return key in ("times", "times_s") or (key.endswith(("_s", "_s_per_iteration")) and key not in _SIMULATED)
 
 
 def strip_times(obj):

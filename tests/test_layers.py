@@ -12,7 +12,7 @@ PACKAGE = Path(nbvs_drake.__file__).resolve().parent
 
 #: layer of each module (the longest matching prefix decides), lowest first
 LAYERS = [
-    ("foundation", ["errors", "files", "resources", "kernel_cache", "config", "world.state"]),
+    ("foundation", ["errors", "files", "resources", "kernel_cache", "stage_clock", "config", "world.state"]),
     ("models", ["world", "perception.registration", "perception.evaluation", "perception.reconstruction", "mapping"]),
     ("planning and outputs", ["planning", "outputs.plots", "outputs.meshcat_draw", "outputs.replay",
                               "outputs.screenshot", "outputs.visual_outputs", "outputs"]),

@@ -665,13 +665,17 @@ def bench_mission(max_scans: int | None = None) -> dict:
     summary.json), its disjoint stages (stages_s, with `unattributed`) and the share of wall_s
     they name, the planning per iteration, coverage, collisions and the last registration's
     error. `max_scans`: a shorter mission (a quick look; the full one is the benchmark)."""
-    from .api import reconstruct
+    from ..stage_clock import SETUP, StageClock
+    from .mission import run_mission
     runs = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, settings, seeds in MISSIONS:
             for seed in seeds:
                 over = list(settings) + ([f"mission.max_scans={max_scans}"] if max_scans else [])
-                s = reconstruct(name, out=Path(tmp) / f"{name}_s{seed}", seed=seed, overrides=over).summary
+                clock = StageClock()  # as `reconstruct` starts it: before the scenario is read
+                with clock.running(), clock.stage(SETUP, "scenario"):
+                    sc = load_scenario(name, seed=seed, settings=over)
+                s = run_mission(sc, Path(tmp) / f"{name}_s{seed}", verbose=False, clock=clock)
                 st = s["stages_s"]
                 runs.append({
                     "scenario": name, "seed": seed, "settings": over, "wall_s": round(s["wall_s"], 2),

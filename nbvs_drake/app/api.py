@@ -179,8 +179,9 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     with _claim_output(out):
         with clock.running(), clock.stage(SETUP, "output_folder"):
             _prepare_output(out, overwrite)  # again, under the lock: another run may have finished
-        from ..errors import Interrupted, InterruptGuard
-        from .mission import run_mission
+        with clock.running(), clock.stage(SETUP, "imports"):  # the mission's modules: Drake, Open3D, numba
+            from ..errors import Interrupted, InterruptGuard
+            from .mission import run_mission
         guard = InterruptGuard()
         try:
             with guard:

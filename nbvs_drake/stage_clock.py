@@ -47,13 +47,17 @@ class _Frame:
 
 
 class StageClock:
-    """Exclusive wall time per (stage, part) since `t0` (perf_counter seconds)."""
+    """Exclusive wall time per (stage, part) since `t0` (perf_counter seconds, when it was made)."""
 
-    def __init__(self, t0: float | None = None):
-        self.t0 = time.perf_counter() if t0 is None else t0
-        self.totals: dict[str, float] = {}
-        self.parts: dict[str, dict[str, float]] = {}
+    def __init__(self):
+        self.t0 = time.perf_counter()
+        self.parts: dict[str, dict[str, float]] = {}  #: stage -> part -> seconds
         self._stack: list[_Frame] = []
+
+    @property
+    def totals(self) -> dict[str, float]:
+        """stage -> seconds (its parts together)."""
+        return {k: sum(v.values()) for k, v in self.parts.items()}
 
     @contextlib.contextmanager
     def stage(self, name: str, part: str = "other"):
@@ -76,7 +80,6 @@ class StageClock:
                 self._stack[-1].mark = now
 
     def add(self, name: str, part: str, seconds: float):
-        self.totals[name] = self.totals.get(name, 0.0) + seconds
         parts = self.parts.setdefault(name, {})
         parts[part] = parts.get(part, 0.0) + seconds
 
@@ -93,11 +96,12 @@ class StageClock:
     def report(self, wall_s: float, digits: int = 3) -> tuple[dict, dict]:
         """({stage: seconds} over STAGES and `unattributed` (wall_s less the stages), adding
         up to wall_s; {stage: {part: seconds}})."""
-        stages = {k: round(self.totals.get(k, 0.0), digits) for k in STAGES}
-        for k, v in self.totals.items():
+        totals = self.totals
+        stages = {k: round(totals.get(k, 0.0), digits) for k in STAGES}
+        for k, v in totals.items():
             if k not in stages:
                 stages[k] = round(v, digits)
-        stages[UNATTRIBUTED] = round(max(wall_s - sum(self.totals.values()), 0.0), digits)
+        stages[UNATTRIBUTED] = round(max(wall_s - sum(totals.values()), 0.0), digits)
         parts = {k: {p: round(s, digits) for p, s in sorted(v.items(), key=lambda kv: -kv[1])}
                  for k, v in self.parts.items()}
         return stages, parts

@@ -171,25 +171,26 @@ def reconstruct(scenario=None, out=None, seed=None, overrides=(), *, overwrite=F
     clock = StageClock()  # the run's wall_s starts here
     if isinstance(overrides, str):
         overrides = (overrides,)
-    with clock.running(), clock.stage(SETUP, "scenario"):
-        sc = _resolve_scenario(scenario, seed, tuple(overrides))
-    out = Path(out) if out is not None else Path("results") / sc.name
-    if out.is_dir():
-        _refuse_finished(out, overwrite)  # before anything is written there, the lock included
-    with _claim_output(out):
-        with clock.running(), clock.stage(SETUP, "output_folder"):
-            _prepare_output(out, overwrite)  # again, under the lock: another run may have finished
-        with clock.running(), clock.stage(SETUP, "imports"):  # the mission's modules: Drake, Open3D, numba
-            from ..errors import Interrupted, InterruptGuard
-            from .mission import run_mission
-        guard = InterruptGuard()
-        try:
-            with guard:
-                run_mission(sc, out, verbose=verbose, meshcat=meshcat, clock=clock)
-        except BaseException as e:
-            if not guard.was_interrupt(e):
-                raise
-            raise Interrupted(f"interrupted: the finished iterations are in {out / 'iterations.jsonl'} "
-                              f"(the scenario in {out / 'scenario.yaml'}; no summary.json; "
-                              f"RunResult.load(folder, partial=True) reads them)") from None
-        return RunResult.load(out)
+    with clock.running():
+        with clock.stage(SETUP, "scenario"):
+            sc = _resolve_scenario(scenario, seed, tuple(overrides))
+        out = Path(out) if out is not None else Path("results") / sc.name
+        if out.is_dir():
+            _refuse_finished(out, overwrite)  # before anything is written there, the lock included
+        with _claim_output(out):
+            with clock.stage(SETUP, "output_folder"):
+                _prepare_output(out, overwrite)  # again, under the lock: another run may have finished
+            with clock.stage(SETUP, "imports"):  # the mission's modules: Drake, Open3D, numba
+                from ..errors import Interrupted, InterruptGuard
+                from .mission import run_mission
+            guard = InterruptGuard()
+            try:
+                with guard:
+                    run_mission(sc, out, verbose=verbose, meshcat=meshcat, clock=clock)
+            except BaseException as e:
+                if not guard.was_interrupt(e):
+                    raise
+                raise Interrupted(f"interrupted: the finished iterations are in {out / 'iterations.jsonl'} "
+                                  f"(the scenario in {out / 'scenario.yaml'}; no summary.json; "
+                                  f"RunResult.load(folder, partial=True) reads them)") from None
+    return RunResult.load(out)

@@ -600,10 +600,9 @@ def bench_registration(scenario: str = "real_robot", n_scans: int = 6, seed: int
         cloud = r.organised_cloud(q)
         pts = clean_scan(cloud)
         reg = clean_scan(binned_cloud(cloud, (rs.width, rs.height), rs.model_binning))
-        model = R.environment_model(sc.scene, cfg).merged(reg[R.region_mask(sc.scene, reg, cfg)], cfg,
-                                                          kin.camera_poses(q)[0][:3, 3])
-        omap = OccupancyMap.for_scenario(sc).integrate(kin.camera_poses(q)[0][:3, 3], pts,
-                                                        sc.mapper.table_clearance)[0]
+        o = kin.camera_poses(q)[0][:3, 3]
+        model = R.environment_model(sc.scene, cfg).merged(reg[R.region_mask(sc.scene, reg, cfg)], cfg, o)
+        omap = OccupancyMap.for_scenario(sc).integrate(o, pts, sc.mapper.table_clearance)[0]
         for _ in range(n_scans):
             qi = q.copy()
             qi[:3] += rng.uniform([-0.15, -0.3, -0.3], [0.15, 0.3, 0.3])

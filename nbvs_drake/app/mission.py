@@ -14,6 +14,7 @@ import numpy as np
 from ..config import Scenario
 from ..files import write_atomic
 from ..mapping.occupancy import write_ply
+from ..perception.evaluation import planning_per_iteration
 from ..stage_clock import EVALUATION, MAP, OUTPUTS, SETUP, SIMULATOR, StageClock
 from ..systems.mission_recorder import IterationLog
 from .diagram import build_mission_diagram
@@ -100,19 +101,6 @@ def prediction_summary(records: list[dict]) -> dict:
     blind = [r["iteration"] for r in records if r["scan"].get("object_points", BLIND_SCAN_POINTS) < BLIND_SCAN_POINTS]
     return {"prediction_r2": clean(fit["r2"]), "prediction_slope": clean(fit["slope"]),
             "prediction_pairs": fit["pairs"], "blind_scans": len(blind), "blind_scan_list": blind}
-
-
-def planning_per_iteration(records: list[dict]) -> dict:
-    """The NBV plan per iteration (plan_s_per_iteration) and all planning per iteration
-    (planning_all_s_per_iteration: the NBV plans with the verification and recovery planning
-    that followed them), over the iterations that planned a path."""
-    plans = [r["plan"] for r in records if (r.get("plan") or {}).get("status") == "ok"]
-    if not plans:
-        return {"plan_s_per_iteration": None, "planning_all_s_per_iteration": None}
-    plan = sum(p.get("plan_s") or 0.0 for p in plans)
-    recovery = sum((r.get("plan") or {}).get("recovery_s") or 0.0 for r in records)
-    return {"plan_s_per_iteration": round(plan / len(plans), 4),
-            "planning_all_s_per_iteration": round((plan + recovery) / len(plans), 4)}
 
 
 def _finish_clock(summary: dict, clock: StageClock):
@@ -280,7 +268,7 @@ def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageCl
                 "reconstruction": t_rec,
                 "coverage_ceiling": ceiling["seconds"] if ceiling and not ceiling.get("cached") else 0.0,
             },
-            **planning_per_iteration(records),
+            **{k: None if v is None else round(v, 4) for k, v in planning_per_iteration(records).items()},
         }
         _finish_clock(summary, clock)
         _write_json(out / "summary.json", summary)

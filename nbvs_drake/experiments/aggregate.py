@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..files import write_atomic
+from ..perception.evaluation import planning_per_iteration
 from .definition import cell_label, cells, expand
 
 #: table.json sections that depend on the machine, the executor or the clock
@@ -96,10 +97,6 @@ def derived(run: dict) -> dict:
     # the registration and the map update of each sensing scan, and of the localisation frames
     reg_s = sum((sc_.get("register_s") or 0.0) + (sc_.get("update_s") or 0.0)
                 + sum(f.get("register_s") or 0.0 for f in sc_.get("frames") or []) for sc_ in scans_recs)
-    recovery = sum((r.get("plan") or {}).get("recovery_s") or 0.0 for r in recs)
-    # records from before recovery planning was timed: frames were answered, but no plan says how long it took
-    untimed = not recovery and any((r.get("scan") or {}).get("frames") for r in recs) \
-        and not any("recovery_s" in (r.get("plan") or {}) for r in recs)
     return {
         "plans": len(plans),
         "views_evaluated": views,
@@ -108,15 +105,13 @@ def derived(run: dict) -> dict:
         "controls_in_path": float(np.mean(controls)) if controls else None,
         "stopped_unknown": 1.0 if s.get("stop_reason") == "unknown_below_threshold" else 0.0,
         "registration_s_per_iteration": reg_s / len(scans_recs) if scans_recs else None,
-        # the NBV plans with the verification and recovery planning that followed them
-        "planning_all_s_per_iteration": ((times.get("plan", 0.0) + recovery) / len(plans)
-                                         if plans and not untimed else None),
+        # the NBV plan, and with the verification and recovery planning that followed it
+        **planning_per_iteration(recs),
         "collided": 1.0 if (s.get("collisions") or 0) > 0 else 0.0,
         "distance_per_scan": s["distance"] / scans if scans and s.get("distance") is not None else None,
         "trajectory_length_mean": float(np.mean(rho)) if rho else None,
         "roughest_voxel_m": voxel * 2 ** hrt_a,
         "visibility_s_per_view": times.get("visibility", 0.0) / views if views else None,
-        "plan_s_per_iteration": times.get("plan", 0.0) / len(plans) if plans else None,
         "visibility_s_per_iteration": times.get("visibility", 0.0) / len(plans) if plans else None,
         "motion_planning_s_per_iteration": times.get("motion_planning", 0.0) / len(plans) if plans else None,
         "view_evaluation_s_per_iteration": (times["view_evaluation"] / len(plans)

@@ -70,3 +70,21 @@ def prediction_fit(records: list[dict], key: str = "revealed_m3") -> dict:
     out["r2"] = float(1.0 - np.sum(res * res) / np.sum((y - y.mean()) ** 2))
     out["slope"] = float(slope)
     return out
+
+
+def planning_per_iteration(records: list[dict]) -> dict:
+    """The NBV plan per iteration (plan_s_per_iteration) and all planning per iteration
+    (planning_all_s_per_iteration: the NBV plans with the verification and recovery planning
+    that followed them, `plan.recovery_s`), over the iterations that planned a path; None
+    without one. A record from before recovery planning was timed (frames answered, but no plan
+    carries recovery_s) has no all-planning time: None, not the plan alone."""
+    plans = [r["plan"] for r in records if (r.get("plan") or {}).get("status") == "ok"]
+    if not plans:
+        return {"plan_s_per_iteration": None, "planning_all_s_per_iteration": None}
+    plan = sum(p.get("plan_s") or 0.0 for p in plans)
+    recovery = sum((r.get("plan") or {}).get("recovery_s") or 0.0 for r in records)
+    untimed = not recovery and any((r.get("scan") or {}).get("frames") for r in records) \
+        and not any("recovery_s" in (r.get("plan") or {}) for r in records)
+    return {"plan_s_per_iteration": plan / len(plans),
+            "planning_all_s_per_iteration": None if untimed else (plan + recovery) / len(plans)}
+

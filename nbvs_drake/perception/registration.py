@@ -92,19 +92,24 @@ class RegistrationConfig:
     far_sigma: float = 0.01
     far_cap: float = 0.05
     far_match: float = 0.15
-    #: match only surfaces that face the same way (set in a room or among obstacles): the scan's
-    #: and the model's normals, each turned towards the camera that saw it, must agree (their
-    #: dot product above `facing_cos`), or the pair is no match. A thin part seen from its other
-    #: side (a chair's backrest, 4 cm thick) has its new face within the correspondence distance
-    #: of the face seen first; matched to it, the new face pulled the pose by the part's
-    #: thickness against every wall in view
-    oriented: bool = False
+    #: with `oriented`: the least dot product of a matched pair's normals
     facing_cos: float = 0.0
     #: in a room or among obstacles (`near`): a fit below min_fitness is still applied when at
     #: least this share of the far points (walls, furniture: known exactly) lies on their
     #: planes (within 2 far_sigma); a view of mostly new surface of the object matches little of
     #: the model, while the walls fix the pose
     min_far_fitness: float = 0.5
+
+    @property
+    def oriented(self) -> bool:
+        """Match only surfaces that face the same way: in a room or among obstacles (`near`).
+        The scan's and the model's normals, each turned towards the camera that saw it, must
+        agree (their dot product above `facing_cos`), or the pair is no match. A thin part seen
+        from its other side (a chair's backrest, 4 cm thick) has its new face within the
+        correspondence distance of the face seen first; matched to it, the new face pulled the
+        pose by the part's thickness against every wall in view. (The table scenes, without
+        walls to fall back on, are measured without it.)"""
+        return self.near is not None
 
 
 #: localisation.fine_stage: the last stage (scan voxel, correspondence distance, m) and the
@@ -129,7 +134,7 @@ def registration_config(loc: LocalisationConfig, scene: SceneConfig | None = Non
     if scene is not None and scene.clutter in ("room", "obstacles"):
         m = cfg.region_margin_xy
         cfg = dc.replace(cfg, near=(scene.bbox_min[0] - m, scene.bbox_min[1] - m, scene.bbox_max[0] + m,
-                                    scene.bbox_max[1] + m), oriented=True, **KNOWN_WALLS)
+                                    scene.bbox_max[1] + m), **KNOWN_WALLS)
     if loc.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
     return cfg

@@ -29,7 +29,7 @@ import numpy as np
 from ..config import Scenario, resolve_sensor
 from ..world.objects import ObjectMesh, sample_surface
 from ..world.robot import RobotKinematics
-from ..world.sensor import ray_directions
+from ..world.sensor import intrinsics, projector_shadow, ray_directions
 from .interface import PlanRequest, PlanResult
 from .motion_planner import reached_goal
 
@@ -64,7 +64,6 @@ class TruthScene:
         import open3d as o3d
 
         from ..world.scene import environment_boxes
-        from ..world.sensor import intrinsics
         self.scene = o3d.t.geometry.RaycastingScene()
         self.object_id = self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
                                                   o3d.core.Tensor(np.asarray(mesh.triangles, np.uint32)))
@@ -89,7 +88,6 @@ class TruthScene:
             n = r["primitive_normals"].numpy()
             ok &= np.abs(np.sum(n * D, axis=1)) >= self.cos_grazing
         if self.shadow_fb:
-            from ..world.sensor import projector_shadow
             z = np.where(np.isfinite(t), t * self.dirs[:, 2], np.inf).reshape(self.grid)
             ok &= ~projector_shadow(z, self.shadow_fb).ravel()
         return O[ok] + t[ok, None] * D[ok]

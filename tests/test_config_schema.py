@@ -29,8 +29,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _same(a, b, ignore=("name", "seed")):
     x, y = settings_of(a), settings_of(b)
-    for k in ignore:
-        x.pop(k, None), y.pop(k, None)
+    for d in (x, y):  # a field, or a section with its fields
+        for k in [k for k in d if any(k == i or k.startswith(i + ".") for i in ignore)]:
+            d.pop(k)
     return {k: (x.get(k), y.get(k)) for k in x.keys() | y.keys() if x.get(k) != y.get(k)}
 
 
@@ -41,14 +42,13 @@ def test_the_configuration_reference_is_current():
 
 
 @pytest.mark.parametrize("preset, definition, levels", [
-    ("nbvs_noise", "motion_noise", {"object": "bunny", "approach": "EU-MU", "planner": "nbvs_face"}),
-    ("nbvs_room", "clutter", {"utility": "EU", "planner": "nbvs_face"}),
+    ("nbvs_noise", "motion_noise", {"object": "bunny", "approach": "EU-MU", "planner": "nbvs_fast"}),
+    ("nbvs_room", "clutter", {"utility": "EU", "planner": "nbvs_fast"}),
 ])
 def test_a_scenario_from_a_preset_with_only_the_object_set_is_its_experiment_level(tmp_path, preset, definition,
                                                                                   levels):
     """A user under noise starts from the preset and sets only the object: the run is the one
-    the experiment level measured (motion_noise nbvs_face EU-MU bunny seed 1: 0.926475;
-    clutter nbvs_face EU bunny seed 1: 0.8625)."""
+    the experiment level measured (motion_noise's and clutter's nbvs_fast, docs/results.md)."""
     f = tmp_path / "mine.yaml"
     f.write_text(f"name: mine\nseed: 1\npreset: {preset}\nscene:\n  object: {{kind: bunny}}\n")
     mine = load_scenario(f)
@@ -67,13 +67,27 @@ def test_the_built_in_noise_scenarios_are_their_presets():
 @pytest.mark.parametrize("name", sorted(builtin_scenarios()))
 def test_the_old_flat_schema_round_trips(name):
     """Every built-in scenario the old flat schema can say, written in it and migrated back, is
-    itself (the real-robot scenes' supports and the Kinect's faults came after it)."""
+    itself (the real-robot scenes' supports, the Kinect's faults, the registration's search and
+    legs that end after turns only came after it: an old record's search is the one of before,
+    None, and its legs end after drives)."""
     if name.startswith("real_robot"):
         pytest.skip("the real-robot scenes postdate the old flat schema")
     sc = load_scenario(name)
     back = from_old(to_old(sc))
     back.preset = sc.preset
-    assert _same(sc, back, ignore=()) == {}
+    assert back.localisation.search is None
+    vv = back.localisation.verified_views
+    assert vv is None or vv.legs is None or vv.legs.after_drives
+    assert _same(sc, back, ignore=("localisation.search", "localisation.verified_views.legs.after_drives")) == {}
+
+
+def test_an_old_setting_changes_only_its_own_field():
+    """`--set scene.object.size=-1` (the old schema's word for the kind's size) goes through the
+    migration, and keeps what the old schema cannot say (the preset's registration search)."""
+    sc = load_scenario("cluttered_room_nbvs", settings=["scene.object.kind=bunny", "scene.object.size=-1"])
+    preset = load_scenario("cluttered_room_nbvs")
+    assert sc.scene.object.size is None and sc.localisation.search == preset.localisation.search
+    assert sc.localisation.verified_views.legs == preset.localisation.verified_views.legs
 
 
 def test_an_old_record_loads_through_the_migration():
@@ -87,8 +101,12 @@ def test_an_old_record_loads_through_the_migration():
     assert vv.landmarks.occlusion and vv.landmarks.facing and vv.registered_sigma == [0.002] * 3
     assert isinstance(sc.planner.utility, Expected) and sc.planner.utility.free_start
     assert isinstance(sc.planner.motion_planner, Roadmap) and sc.planner.obstacles.base_clearance == 0.15
-    assert _same(sc, load_scenario("cluttered_room_nbvs", seed=1, settings=["scene.object.kind=bunny"]),
-                 ignore=("name",)) == {}
+    # the preset as it was then: the registration's search of before (localisation.search) and
+    # legs that end after drives too
+    assert sc.localisation.search is None and vv.legs.after_drives
+    assert _same(sc, load_scenario("cluttered_room_nbvs", seed=1, settings=[
+        "scene.object.kind=bunny", "localisation.search=null", "localisation.verified_views.legs.after_drives=true"]),
+        ignore=("name",)) == {}
 
 
 def test_old_settings_and_documents_migrate():
@@ -131,3 +149,23 @@ def test_a_level_from_another_and_skipped_cells():
     assert not any(r.levels["approach"] == "DU" and r.levels["planner"] in ("nbvs_refine", "nbvs_sight", "nbvs_face")
                    for r in runs)
     assert any(r.levels["approach"] == "DU" and r.levels["planner"] == "nbvs_fine" for r in runs)
+
+
+def test_the_registration_search_is_the_noise_presets_and_an_old_record_keeps_its_own():
+    """localisation.search (the presets nbvs_noise and nbvs_room) sets the registration's grid
+    starts and coarse stage; None (the schema's default, every record made before it) is the
+    search of before, KNOWN_WALLS in a room."""
+    from nbvs_drake.perception.registration import KNOWN_WALLS, RegistrationConfig, registration_config
+    sc = load_scenario("teapot_eu_mu_nbvs")
+    cfg = registration_config(sc.localisation, sc.scene)
+    assert cfg.grid_major == (-2.0, -1.0, 0.0, 1.0, 2.0) and cfg.max_coarse_points == 700
+    assert cfg.max_coarse_iterations == 8 and cfg.step_tol == 1e-4
+    old = load_scenario("teapot_eu_mu")
+    assert old.localisation.search is None
+    before = registration_config(old.localisation, old.scene)
+    assert before.grid_major == RegistrationConfig().grid_major and before.max_coarse_iterations == 30
+    room = load_scenario("real_robot")
+    assert room.localisation.search is None
+    assert registration_config(room.localisation, room.scene).grid_major == KNOWN_WALLS["grid_major"]
+    with pytest.raises(ScenarioError, match="localisation.search.coarse_iterations"):
+        load_scenario("teapot_eu_mu_nbvs", settings=["localisation.search.coarse_iterations=0"])

@@ -198,3 +198,47 @@ def test_the_registered_spread_the_rollouts_start_from_is_the_scenarios():
     np.testing.assert_allclose(eu.leg_cov(), np.diag([0.002 ** 2, 0.003 ** 2, 0.004 ** 2 + turn]))
     with pytest.raises(ScenarioError, match="localisation.verified_views.registered_sigma"):
         load_scenario("cluttered_room", settings=["localisation.verified_views={registered_sigma: [0.01, -1, 0.01]}"])
+
+
+def test_probability_weighting_scores_only_the_rollouts_that_carry_weight():
+    """Algorithm 1's probability weights put almost all mass on a few rollouts: those below
+    WEIGHT_FLOOR of the largest are not scored, and E(x) is the full weighted sum's to far
+    below any difference between two views; the plain mean scores every rollout."""
+    from nbvs_drake.planning.expected_utility import WEIGHT_FLOOR
+    noise = NoiseConfig(sigma_v=0.00165, sigma_w=0.28)
+    controls = np.zeros((60, 7))
+    controls[:30, 1] = 0.5  # a turn in place, then a drive
+    controls[30:, 0] = 0.3
+    scored = []
+
+    def utility(finals):
+        scored.append(len(finals))
+        return 1.0 + finals[:, 0] + finals[:, 2]
+    free = lambda s: np.ones(len(s), bool)  # noqa: E731
+    eu = expected_utility(np.zeros(8), controls, 0.1, 500, noise, np.random.default_rng(3), free, utility)
+    assert eu.feasible and eu.scored == scored[0] < 500
+    assert np.all(eu.weights[eu.utilities == 0] < WEIGHT_FLOOR * eu.weights.max())
+    full = float(np.dot(eu.weights, 1.0 + eu.final_states[:, 0] + eu.final_states[:, 2]))
+    assert eu.value == pytest.approx(full, rel=500 * WEIGHT_FLOOR)
+    assert eu.spread == pytest.approx(np.sqrt(np.dot(eu.weights, (eu.utilities - eu.value) ** 2)))
+    mean = expected_utility(np.zeros(8), controls, 0.1, 500, noise, np.random.default_rng(3), free, utility,
+                            weighting="mean")
+    assert mean.scored == 500 and mean.spread == pytest.approx(np.std(mean.utilities))
+
+
+def test_noise_drawn_per_chunk_is_the_noise_drawn_at_once():
+    """NoiseDraws: any rollouts' noise is what one sample_control_noise call for all k gives
+    them, and the generator is left where that call leaves it (a candidate ruled out by its
+    first rollouts changes no later draw)."""
+    from nbvs_drake.planning.expected_utility import NoiseDraws
+    from nbvs_drake.world.motion import sample_control_noise
+    noise = NoiseConfig(sigma_v=0.00165, sigma_w=0.28, sigma_arm=[0.01, 0.0, 0.0, 0.0, 0.0])
+    controls = np.zeros((40, 7))
+    controls[:10, 1], controls[10:, 0], controls[20:25, 2] = 0.5, 0.3, 0.2
+    at_once, lazy = np.random.default_rng(11), np.random.default_rng(11)
+    every = sample_control_noise(at_once, noise, controls, 300)
+    draws = NoiseDraws(lazy, noise, controls, 300)
+    assert lazy.uniform() == at_once.uniform()
+    for idx in (np.arange(100), np.arange(100, 300), np.array([3, 7, 250]), np.arange(0)):
+        np.testing.assert_array_equal(draws.rows(idx), every[idx])
+    assert np.all(every[:, :10, 0] == 0) and np.all(every[:, :10, 1] != 0) and np.all(every[:, 20:25, 2] != 0)

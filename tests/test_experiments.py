@@ -87,12 +87,12 @@ def test_definition_expands_to_its_runs(name):
 def test_full_sizes_follow_the_papers():
     size = {n: len(expand(resolve(load_definition(n)))) for n in NAMES}
     # Table 5: three objects, three approaches, ten runs; with the paper's settings and this
-    # project's planner (nbvs, nbvs_refine, nbvs_fine, nbvs_sight, nbvs_face)
-    assert size["motion_noise"] == 3 * 3 * 10 * 6 - 3 * 10 * 3  # the noise-free DU cells of three rungs skipped
+    # project's planner (nbvs, nbvs_refine, nbvs_fine, nbvs_sight, nbvs_face, nbvs_fast)
+    assert size["motion_noise"] == 3 * 3 * 10 * 7 - 3 * 10 * 4  # the noise-free DU cells of four rungs skipped
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
     # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
-    # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_face)
-    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 7
+    # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_face, nbvs_fast)
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["hrt"] % 4 == 0  # a = 0..3
 
@@ -531,8 +531,8 @@ def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
 
 
 @pytest.mark.parametrize("experiment, scenario, levels, extra", [
-    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_face"}, []),
-    ("clutter", "cluttered_room_nbvs", {"utility": "EU", "planner": "nbvs_face"},
+    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_fast"}, []),
+    ("clutter", "cluttered_room_nbvs", {"utility": "EU", "planner": "nbvs_fast"},
      ["scene.object.kind=bunny", "scene.object.size=-1"]),
 ])
 def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scenario, levels, extra):
@@ -547,3 +547,4 @@ def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scena
     assert measured == builtin
     vv = builtin.localisation.verified_views
     assert vv is not None and vv.landmarks.occlusion and vv.landmarks.facing
+    assert builtin.localisation.search is not None

@@ -10,6 +10,7 @@ from pydrake.common.value import AbstractValue
 from test_registration import _cloud, _first_scan_then_plan, renderer, second_scan_in_view  # noqa: F401
 
 from nbvs_drake.config import VerifiedViews, load_scenario
+from nbvs_drake.errors import ScenarioError
 from nbvs_drake.perception.registration import KnownSolids, RegistrationConfig, region_mask
 from nbvs_drake.planning.recovery import (
     aim_error,
@@ -358,6 +359,12 @@ def test_with_leg_turns_a_leg_also_ends_after_a_long_turn_that_a_drive_follows()
     short = c[ends[0] - n + 1:]
     assert leg_ends(short, n, after_drives=False) == [len(short)]
     assert rule(load_scenario("cluttered_room")).ends(c) == [len(c)]  # no legs without verified views
+    # legs.after_drives false (the preset nbvs_room): the legs end after the long turns only
+    assert rule(load_scenario("cluttered_room_nbvs")).ends(c) == leg_ends(c, n, after_drives=False)
+    both = load_scenario("cluttered_room_nbvs", settings=["localisation.verified_views.legs.after_drives=true"])
+    assert rule(both).ends(c) == ends
+    with pytest.raises(ScenarioError, match="legs"):
+        load_scenario("teapot_eu_mu_nbvs", settings=["localisation.verified_views.legs.after_drives=false"])
 
 
 def test_with_leg_turns_each_leg_has_its_own_recovery_budget():

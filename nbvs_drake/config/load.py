@@ -4,6 +4,7 @@ dotted settings, then the kind's defaults, then the checks. A scenario in the ol
 
 from __future__ import annotations
 
+import copy
 import dataclasses as dc
 import typing
 from pathlib import Path
@@ -188,9 +189,26 @@ def _apply_old_setting(scenario: Scenario, parts, value, setting) -> Scenario:
         old = legacy.load_old_text(_setting_text(parts, value), legacy.to_old(scenario))
     except Exception as e:  # noqa: BLE001
         raise ScenarioError(f"setting {setting!r}: {' '.join(str(e).split())}") from None
-    out = legacy.from_old(old)
+    # only what the setting changed: the fields the old schema cannot say (the registration's
+    # search, the real-robot scenes) keep their values
+    out = _with_changes(copy.deepcopy(scenario), legacy.from_old(legacy.to_old(scenario)), legacy.from_old(old))
     out.preset = scenario.preset
     return out
+
+
+def _with_changes(target, before, after):
+    """target with every field where `after` differs from `before` set to after's (nested
+    sections field by field)."""
+    for f in dc.fields(after):
+        a, b = getattr(after, f.name), getattr(before, f.name)
+        if a == b:
+            continue
+        t = getattr(target, f.name)
+        if dc.is_dataclass(a) and type(a) is type(b) and type(t) is type(a):
+            _with_changes(t, b, a)
+        else:
+            setattr(target, f.name, copy.deepcopy(a))
+    return target
 
 
 def validate(sc: Scenario) -> Scenario:

@@ -372,6 +372,15 @@ class Legs:
     #: a leg also ends after each long turn in place that a drive follows, so that the frame
     #: corrects the heading before the drive
     after_turns: bool = False
+    #: a leg ends after each drive that more base motion follows; False (with after_turns):
+    #: only after the long turns. A drive adds little error of its own (sigma_v = 1.65 mm/s),
+    #: and the frame after the turn that follows it fixes that turn's heading anyway
+    after_drives: bool = True
+
+    def check(self, at: str) -> None:
+        require(self.after_drives or self.after_turns,
+                f"{at}: legs that end neither after drives nor after turns are one leg; set after_turns "
+                f"or after_drives, or no legs")
 
 
 @dc.dataclass
@@ -412,8 +421,37 @@ class VerifiedViews:
                 f"{at}.tolerance_m and tolerance_rad must be > 0, got {self.tolerance_m}, {self.tolerance_rad}")
         require(self.max_recoveries >= 0, f"{at}.max_recoveries must be >= 0, got {self.max_recoveries}")
         require(self.recovery_rollouts >= 0, f"{at}.recovery_rollouts must be >= 0, got {self.recovery_rollouts}")
+        if self.legs is not None:
+            self.legs.check(f"{at}.legs")
         require(len(self.registered_sigma) == 3 and all(finite(v) and v >= 0 for v in self.registered_sigma),
                 f"{at}.registered_sigma must be 3 numbers >= 0 (m, m, rad), got {self.registered_sigma}")
+
+
+@dc.dataclass
+class RegistrationSearch:
+    """How the registration searches its prior (registration.register_scan): the grid starts
+    along the prior's main axis, and the coarse stage every start runs. Measured on wide priors
+    (a frame after a leg, 26 cm and 0.15 rad) in the cluttered room: the search of before (nine
+    starts, 1,500 coarse points, 30 coarse iterations, steps to 1 um) took 2.3 s a
+    registration, these defaults 0.8 s, with the same errors (docs/decisions.md). The coarse
+    stage's starts away from the truth wander in ~5 mm steps for all their iterations; the one
+    near it settles within a few."""
+    #: starts along the prior's main axis, in its standard deviations (times grid_minor's three)
+    grid_major: list[float] = dc.field(default_factory=lambda: [-2.0, -1.0, 0.0, 1.0, 2.0])
+    coarse_points: int = 700  #: the coarse stage's scan points (at most)
+    coarse_iterations: int = 8  #: the coarse stage's Gauss-Newton iterations (at most)
+    #: a stage has converged when no step component exceeds this (m, rad); far_step_tol: the
+    #: stages that match a room's walls and furniture
+    step_tol: float = 1e-4
+    far_step_tol: float = 1e-3
+
+    def check(self, at: str) -> None:
+        require(len(self.grid_major) >= 1 and finite(*self.grid_major),
+                f"{at}.grid_major must be one or more numbers, got {self.grid_major}")
+        require(self.coarse_points >= 100, f"{at}.coarse_points must be >= 100, got {self.coarse_points}")
+        require(self.coarse_iterations >= 1, f"{at}.coarse_iterations must be >= 1, got {self.coarse_iterations}")
+        require(finite(self.step_tol, self.far_step_tol) and self.step_tol > 0 and self.far_step_tol > 0,
+                f"{at}.step_tol and far_step_tol must be > 0, got {self.step_tol}, {self.far_step_tol}")
 
 
 @dc.dataclass
@@ -431,6 +469,10 @@ class LocalisationConfig:
     #: noise-free depth sensor (registration.FINE_STAGE)
     fine_stage: bool = False
     verified_views: Optional[VerifiedViews] = None  #: None: every frame after a plan is the scan
+    #: the registration's search; None: the search of before (nine starts, 30 coarse
+    #: iterations; in a room or among obstacles registration.KNOWN_WALLS), as records made
+    #: before it load
+    search: Optional[RegistrationSearch] = None
 
     def cap(self) -> float:
         """The residual cap in metres (0: the last stage's distance)."""
@@ -444,6 +486,8 @@ class LocalisationConfig:
                 f"{at}.residual_cap must be in [0, 0.02] m or null, got {self.residual_cap}")
         if self.verified_views is not None:
             self.verified_views.check(f"{at}.verified_views")
+        if self.search is not None:
+            self.search.check(f"{at}.search")
 
 
 # --------------------------------------------------------------------------------------

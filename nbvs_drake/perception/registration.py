@@ -54,6 +54,8 @@ class RegistrationConfig:
     #: coarse-to-fine ICP: (downsampling voxel, max correspondence distance) per stage (m)
     stages: tuple = ((0.03, 0.15), (0.02, 0.06), (0.01, 0.02))
     max_iterations: int = 30
+    #: the coarse stage's iterations (every grid start runs it)
+    max_coarse_iterations: int = 30
     #: a stage has converged when no step component exceeds this (m, rad)
     step_tol: float = 1e-6
     #: the same for the stages that see beyond `near` (the coarse stage in a room, which every
@@ -127,8 +129,8 @@ KNOWN_WALLS = dict(grid_major=(-2.0, -1.0, 0.0, 1.0, 2.0), max_coarse_points=700
 
 
 def registration_config(loc: LocalisationConfig, scene: SceneConfig | None = None) -> RegistrationConfig:
-    """The registration's settings of the localisation section (residual cap, fine stage)
-    and of the scene (in a room or among obstacles: the region reaches the known walls and
+    """The registration's settings of the localisation section (residual cap, fine stage,
+    search) and of the scene (in a room or among obstacles: the region reaches the known walls and
     furniture, kept coarser beyond the object's surroundings)."""
     cfg = RegistrationConfig(residual_cap=loc.cap())
     if scene is not None and scene.clutter in ("room", "obstacles"):
@@ -137,6 +139,10 @@ def registration_config(loc: LocalisationConfig, scene: SceneConfig | None = Non
                                     scene.bbox_max[1] + m), **KNOWN_WALLS)
     if loc.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
+    if loc.search is not None:
+        s = loc.search
+        cfg = dc.replace(cfg, grid_major=tuple(float(v) for v in s.grid_major), max_coarse_points=s.coarse_points,
+                         max_coarse_iterations=s.coarse_iterations, step_tol=s.step_tol, far_step_tol=s.far_step_tol)
     return cfg
 
 
@@ -525,11 +531,11 @@ class PlanarIcp:
     def refine(self, xi, stages=None):
         cfg, Cinv = self.cfg, self.Cinv
         xi = np.array(xi, float)
-        for voxel, dist in (cfg.stages if stages is None else stages):
+        for n, (voxel, dist) in enumerate(cfg.stages if stages is None else stages):
             P = self.coarse[voxel, dist]
             walls = len(self.far) > 0 and dist < cfg.far_voxel  # (the coarse stage has them in P)
             tol = cfg.far_step_tol if cfg.near is not None and dist >= cfg.far_voxel else cfg.step_tol
-            for _ in range(cfg.max_iterations):
+            for _ in range(cfg.max_coarse_iterations if n == 0 else cfg.max_iterations):
                 X, j, ok = self._matches(P, xi, dist)
                 terms = []
                 if ok.sum() >= 10:

@@ -2,19 +2,20 @@
 bound of §7.3 (eq. 18).
 
 k rollouts of the motion model the NoisyVelocityController executes (Euler integration of
-u_t + eps_t, eps truncated Gaussian, zero on the components commanded 0 unless
-`noise.perturb_zero_commands`); every intermediate state of every rollout is checked for
+u_t + eps_t, eps truncated Gaussian, zero on the components commanded 0); every
+intermediate state of every rollout is checked for
 collision with Drake (in batches); any colliding rollout makes the candidate unfeasible (the
 conservative rule of Algorithm 1, line 7). With `max_collision_rate` > 0 the candidate is
 unfeasible only when more than that share of the k rollouts collide (the "weighted strategy"
 §7.2 names as the alternative): a colliding rollout then contributes g = 0, the pos(x) factor
-of its final state. Otherwise the utility of each final state is
-weighted by its probability, the product of the per-step densities computed in log space
-(hundreds of densities underflow) and normalised (weighting "probability", Algorithm 1 lines
-10-12), or averaged with equal weights (weighting "mean": the rollouts are already draws from
-the error distribution, so their plain average is the Monte Carlo estimate of the expected
-utility). The products of m densities spread over ~sqrt(m) in log space, so for the ~100-step
-plans here the normalised weights put almost all mass on one rollout: `ess` reports their
+of its final state. Otherwise the utility of each final state is weighted by its
+probability, the product of the per-step densities computed in log space (hundreds of
+densities underflow) and normalised (weighting "probability", Algorithm 1 lines 10-12; a
+rollout of negligible weight is not scored, WEIGHT_FLOOR), or averaged with equal weights
+(weighting "mean": the rollouts are already draws from the error distribution, so their
+plain average is the Monte Carlo estimate of the expected utility). The products of m
+densities spread over ~sqrt(m) in log space, so for the ~100-step plans here the normalised
+weights put almost all mass on one rollout: `ess` reports their
 effective sample size (sum w)^2 / sum w^2.
 """
 
@@ -39,6 +40,12 @@ from ..world.pose import EXACT_POSE_VAR, apply_corrections
 #: the coarse pass over a chunk of rollouts checks every COARSE_STEP-th step (and the last)
 COARSE_STEP = 8
 
+#: with the "probability" weighting, a rollout whose normalised weight is below this share of
+#: the largest is not scored: the k rollouts dropped so move E(x) by less than k times this
+#: share of the largest utility (5e-7 of it at k = 500), while the weights put almost all mass
+#: on a few rollouts (the module docstring), so their views need not all be simulated
+WEIGHT_FLOOR = 1e-9
+
 
 def coarse_to_fine(m: int) -> list[np.ndarray]:
     """The column indices 0..m-1 of m steps in the order the rollouts are checked: the last
@@ -60,6 +67,38 @@ def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> in
     return int(math.ceil(math.log(alpha) / math.log(1.0 - eta * gamma) - 1e-12))
 
 
+class NoiseDraws:
+    """The control noise of k rollouts, `sample_control_noise(rng, noise, controls, k)`, drawn
+    one set of rollouts at a time (`rows`): the generator is advanced past all k at once, as
+    that call leaves it, so a candidate that its first rollouts rule out does not draw the
+    others' noise, and every later draw is the same. (A PCG64 generator, which numpy's
+    default_rng is, draws one 64-bit output per uniform; another generator draws all k.)"""
+
+    def __init__(self, rng: np.random.Generator, noise: NoiseConfig, controls: np.ndarray, k: int):
+        self.noise, self.controls = noise, controls
+        self.per = controls.size  # uniforms per rollout
+        bg = rng.bit_generator
+        self._all = None
+        if isinstance(bg, np.random.PCG64):
+            self._state = bg.state
+            bg.advance(k * self.per)
+        else:
+            self._all = sample_control_noise(rng, noise, controls, k)
+
+    def rows(self, idx: np.ndarray) -> np.ndarray:
+        """The noise (len(idx), m, NU) of the rollouts idx (increasing)."""
+        idx = np.asarray(idx, np.int64)
+        if self._all is not None:
+            return self._all[idx]
+        if len(idx) == 0:
+            return np.zeros((0,) + self.controls.shape)
+        g = np.random.Generator(np.random.PCG64())
+        g.bit_generator.state = self._state
+        g.bit_generator.advance(int(idx[0]) * self.per)
+        span = sample_control_noise(g, self.noise, self.controls, int(idx[-1] - idx[0]) + 1)
+        return span[idx - idx[0]]
+
+
 @dc.dataclass
 class ExpectedUtility:
     feasible: bool
@@ -71,12 +110,16 @@ class ExpectedUtility:
     utilities: np.ndarray | None = None
     weights: np.ndarray | None = None
     ess: float = 0.0  #: effective sample size of the weights (k for "mean")
-    spread: float = 0.0  #: standard deviation of the rollouts' utilities
+    #: the weighted standard deviation of the rollouts' utilities about E(x) (with the
+    #: "probability" weighting over the rollouts scored: see WEIGHT_FLOOR)
+    spread: float = 0.0
+    scored: int = 0  #: rollouts whose final state was scored
+    mask: np.ndarray | None = None  #: which rollouts those are (k,)
 
     def to_json(self) -> dict:
         return {"feasible": self.feasible, "eu": self.value, "k": self.rollouts,
                 "rollouts_checked": self.rollouts_checked, "collided_rollouts": self.collided_rollouts,
-                "ess": self.ess, "g_std": self.spread}
+                "ess": self.ess, "g_std": self.spread, "scored": self.scored}
 
 
 def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, noise: NoiseConfig,
@@ -108,7 +151,8 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         raise ValueError(f"max_collision_rate must be in [0, 1), got {max_collision_rate}")
     controls = np.asarray(controls, float)
     sigma = control_sigmas(noise, controls)  # (m, NU): 0 where the command is exact
-    eps = sample_control_noise(rng, noise, controls, k)
+    draws = NoiseDraws(rng, noise, controls, k)
+    rows = np.arange(k)  # the rollouts kept (all but those whose start collides)
     z = None
     if start_cov is not None and np.any(np.diag(np.asarray(start_cov, float)) > EXACT_POSE_VAR):
         L = np.linalg.cholesky(np.asarray(start_cov, float) + EXACT_POSE_VAR * np.eye(3))
@@ -118,13 +162,20 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
             keep = np.asarray(start_free(q0), bool)
             if not keep.any():
                 return ExpectedUtility(False, 0.0, 0, 0, 0)
-            q0, z, eps, k = q0[keep], z[keep], eps[keep], int(keep.sum())
-    states = rollout(q0, controls[None] + eps, dt)  # (k, m+1, 8)
+            q0, z, rows, k = q0[keep], z[keep], rows[keep], int(keep.sum())
+    q0 = np.broadcast_to(np.asarray(q0, float), (k, 8))
     allowed = int(math.floor(max_collision_rate * k + 1e-9))  # colliding rollouts tolerated
     ok = np.ones(k, bool)
+    finals = np.zeros((k, 8))
     checked = collided = 0
+    eps = []
     for start in range(0, k, chunk):
-        block = states[start:start + chunk, 1:]  # intermediate and final states
+        # this chunk's rollouts (each row its own: the same states as all k at once), so that
+        # a candidate ruled out by its first chunk does not draw or roll out the others
+        eps.append(draws.rows(rows[start:start + chunk]))
+        states = rollout(q0[start:start + chunk], controls[None] + eps[-1], dt)
+        finals[start:start + len(states)] = states[:, -1]
+        block = states[:, 1:]  # intermediate and final states
         checked += len(block)
         if block_free is not None and allowed == 0:
             bad = np.zeros(len(block), bool)
@@ -140,6 +191,7 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         if collided > allowed:
             return ExpectedUtility(False, 0.0, k, checked, collided)
     if weighting == "probability":
+        eps = np.concatenate(eps) if eps else np.zeros((0,) + controls.shape)
         logp = truncated_normal_logpdf(eps, sigma, noise.beta).sum(axis=1)  # log prod_t p_t
         if z is not None:  # times the start's density
             logp = logp + truncated_normal_logpdf(z, np.ones(3), noise.beta)
@@ -147,8 +199,23 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         w /= w.sum()
     else:
         w = np.full(k, 1.0 / k)
-    finals = states[:, -1]
     g = np.zeros(k)
-    g[ok] = np.asarray(utility(finals[ok]), float)  # pos(x) = 0 at a colliding rollout's end
+    # pos(x) = 0 at a colliding rollout's end; rollouts of negligible weight are not scored
+    score = ok & (w >= WEIGHT_FLOOR * w.max()) if weighting == "probability" else ok
+    g[score] = np.asarray(utility(finals[score]), float)
+    value = float(np.dot(w, g))
     ess = float(1.0 / np.sum(w * w))
-    return ExpectedUtility(True, float(np.dot(w, g)), k, checked, collided, finals, g, w, ess, float(g.std()))
+    spread = float(np.sqrt(max(np.dot(w, (g - value) ** 2), 0.0)))
+    return ExpectedUtility(True, value, k, checked, collided, finals, g, w, ess, spread, int(np.count_nonzero(score)),
+                           score)
+
+
+def rescored(eu: ExpectedUtility, utility: Callable[[np.ndarray], np.ndarray]) -> ExpectedUtility:
+    """The same rollouts (their weights, which were scored) with their final states scored
+    again by `utility`: E(x) of a finer view evaluation (the coarse-to-fine expected utility,
+    `utility.ExpectedUtilityScore`)."""
+    g = np.zeros(eu.rollouts)
+    g[eu.mask] = np.asarray(utility(eu.final_states[eu.mask]), float)
+    value = float(np.dot(eu.weights, g))
+    spread = float(np.sqrt(max(np.dot(eu.weights, (g - value) ** 2), 0.0)))
+    return dc.replace(eu, value=value, utilities=g, spread=spread)

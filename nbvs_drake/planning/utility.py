@@ -23,7 +23,7 @@ from ..mapping.occupancy import OccupancyMap
 from ..world.motion import LegRule
 from . import path_verdicts
 from .certificate import FREE, UNKNOWN
-from .expected_utility import expected_utility, sample_count_bound
+from .expected_utility import expected_utility, rescored, sample_count_bound
 from .interface import PlanRequest, PlanResult
 from .motion_planner import MotionPlanner, ObstacleModel
 from .views import ViewEvaluator, registration_overlap
@@ -66,10 +66,11 @@ class ExpectedUtilityScore:
                           f"alpha = {self.u.alpha}, gamma = {self.u.gamma}: collisions may go undetected", stacklevel=2)
 
     def state_utility(self, omap: OccupancyMap, states: np.ndarray, un_total: int, dist: float,
-                      registration: bool = True) -> np.ndarray:
+                      registration: bool = True, coarse: bool = False) -> np.ndarray:
         """g = pos * reg * info * dist of states (N, 8) reached along a path of factor `dist`
-        (pos: collision-free states only are passed in); registration False: reg = 1."""
-        met = self.evaluator.evaluate(omap, states)
+        (pos: collision-free states only are passed in); registration False: reg = 1; coarse:
+        their views evaluated by the coarse pass (`ViewEvaluator.evaluate_coarse`)."""
+        met = (self.evaluator.evaluate_coarse if coarse else self.evaluator.evaluate)(omap, states)
         g = self.evaluator.information(omap, states, met, self.sc.planner.metric, un_total)
         if registration and self.overlap_h is not None:
             g = g * (registration_overlap(met) > self.overlap_h)
@@ -115,17 +116,25 @@ class ExpectedUtilityScore:
         """mission.legs with verified views under motion noise: plans run in legs."""
         return self.legs.on
 
-    def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int):
+    def coarse_rollouts(self) -> bool:
+        """Whether the rollouts' views are scored coarse to fine: the evaluator has a coarse
+        pass (planner.evaluator.coarse_stride) and the rollouts' final states are scored by
+        their views (without verified views; with them, by the landmarks they keep in view)."""
+        return self.evaluator.coarse is not None and self.sc.localisation.verified_views is None
+
+    def expected(self, request: PlanRequest, cand: PlanResult, obstacles: ObstacleModel, un_total: int,
+                 coarse: bool = False):
         """Algorithm 1 for one candidate. With legs (`uses_legs`, `LegRule`) each leg's
         rollouts start from its nominal start (the first from the belief and its spread, the
         others re-localised by the frame at the previous leg's end); the candidate is feasible
-        when every leg is, and its value is the last leg's."""
+        when every leg is, and its value is the last leg's. coarse: the final states' views
+        by the coarse pass (`coarse_rollouts`)."""
         omap = request.omap
         if self.sc.localisation.verified_views is not None:
             final_utility = self._verified_utility(request, cand)
         else:
             def final_utility(s):
-                return self.state_utility(omap, s, un_total, cand.factors["dist"], True)
+                return self.state_utility(omap, s, un_total, cand.factors["dist"], True, coarse)
         ends = self.legs.ends(cand.controls)
         start, checked, collided, eu = 0, 0, 0, None
         for j, end in enumerate(ends):
@@ -208,13 +217,34 @@ class ExpectedUtilityScore:
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
               un_total: int) -> tuple[list[PlanResult], int]:
+        """Algorithm 1 for each candidate of a batch. With `coarse_rollouts`, coarse to fine:
+        every candidate's rollouts are scored by the coarse pass, then the best candidate's
+        again at the full ray stride (the same rollouts), until the best is one scored at full
+        stride: the chosen view's E(x) is exact and above every other estimate."""
         n_feasible = 0
+        coarse = self.coarse_rollouts()
+        pending = {}
         for r in reachable:
-            eu = self.expected(request, r, obstacles, un_total)
+            eu = self.expected(request, r, obstacles, un_total, coarse)
             r.factors["eu"] = eu.to_json()
             r.utility = eu.value
             n_feasible += eu.feasible
-        return [r for r in reachable if r.factors["eu"]["feasible"]], n_feasible
+            if coarse and eu.feasible:
+                pending[id(r)] = eu
+        feasible = [r for r in reachable if r.factors["eu"]["feasible"]]
+        while pending:
+            best = None
+            for r in feasible:  # the first of the highest, as select_best takes it
+                if best is None or r.utility > best.utility:
+                    best = r
+            eu = pending.pop(id(best), None)
+            if eu is None:
+                break
+            dist = best.factors["dist"]
+            fine = rescored(eu, lambda s, d=dist: self.state_utility(request.omap, s, un_total, d))
+            best.factors["eu"] = dict(fine.to_json(), eu_coarse=eu.value)
+            best.utility = fine.value
+        return feasible, n_feasible
 
 
 def make_utility(sc: Scenario, evaluator: ViewEvaluator, motion: MotionPlanner, overlap_h: float | None):

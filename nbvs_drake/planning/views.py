@@ -64,6 +64,16 @@ class ViewEvaluator:
         X = self.kin.camera_poses(q)
         return self.evaluate_poses(omap, X)
 
+    def evaluate_coarse(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
+        """Metrics (N, K.N_METRICS) of the states q (N, 8) from the coarse pass's rays
+        (planner.evaluator.coarse_stride), the per-ray columns on the scale of this evaluator's
+        ray count (`coarse_to_exact_scale`); without a coarse pass, `evaluate`."""
+        q = np.atleast_2d(q)
+        if self.coarse is None or len(q) == 0:
+            return self.evaluate(omap, q)
+        met = self.evaluate_poses(omap, self.kin.camera_poses(q), rays=self.coarse)
+        return coarse_to_exact_scale(met, len(self.coarse[0]), len(self.dirs))
+
     def evaluate_ranked(self, omap: OccupancyMap, q: np.ndarray, score) -> tuple[np.ndarray, np.ndarray]:
         """(metrics (N, K.N_METRICS), order): the states' metrics and their ranking by
         `score(metrics (N, K.N_METRICS))` (N,), best first (stable; `score` may carry

@@ -95,8 +95,8 @@ def noise_sigmas(noise: NoiseConfig) -> np.ndarray:
 
 def control_sigmas(noise: NoiseConfig, controls: np.ndarray) -> np.ndarray:
     """Per-step standard deviations (m, NU) of the noise on `controls` (m, NU): Table 4's
-    sigmas on every component, except (unless `noise.perturb_zero_commands`) where the
-    command is exactly 0, which is executed exactly."""
+    sigmas on every component, except where the command is exactly 0, which is executed
+    exactly."""
     controls = np.asarray(controls, float)
     sig = np.broadcast_to(noise_sigmas(noise), controls.shape)
     return np.where(controls != 0.0, sig, 0.0)
@@ -109,16 +109,28 @@ def sample_control_noise(rng: np.random.Generator, noise: NoiseConfig, controls:
     draws give the same noise on the commanded components whatever the zero-command rule."""
     controls = np.asarray(controls, float)
     shape = (len(controls),) if n is None else (n, len(controls))
-    eps = sample_truncated_normal(rng, noise_sigmas(noise), noise.beta, shape)
-    return eps * (control_sigmas(noise, controls) > 0)
+    # sample_truncated_normal's draws, its inverse CDF taken only where the noise acts (the
+    # same numbers there, zero elsewhere: Table 4 leaves the arm and the uncommanded exact)
+    sigma = noise_sigmas(noise)
+    u = _truncated_uniform(rng, noise.beta, shape + (len(sigma),))
+    sig = np.broadcast_to(sigma, controls.shape).ravel()
+    act = np.flatnonzero(control_sigmas(noise, controls).ravel() > 0)  # (step, component) pairs
+    flat = u.reshape(-1, max(controls.size, 1))
+    eps = np.zeros(flat.shape)
+    eps[:, act] = ndtri(flat[:, act]) * sig[act]
+    return eps.reshape(u.shape)
 
 
 def sample_truncated_normal(rng: np.random.Generator, sigma: np.ndarray, beta: float, shape) -> np.ndarray:
     """Zero-mean normal samples with standard deviations `sigma` (broadcast over the last
     axis), truncated to [-beta sigma, beta sigma] by inverse-CDF sampling."""
+    return ndtri(_truncated_uniform(rng, beta, tuple(shape) + (len(sigma),))) * sigma
+
+
+def _truncated_uniform(rng: np.random.Generator, beta: float, shape) -> np.ndarray:
+    """The uniform draws of sample_truncated_normal: their inverse normal CDF is the sample."""
     lo = ndtr(-beta)
-    u = rng.uniform(lo, 1.0 - lo, size=tuple(shape) + (len(sigma),))
-    return ndtri(u) * sigma
+    return rng.uniform(lo, 1.0 - lo, size=shape)
 
 
 def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> np.ndarray:
@@ -141,6 +153,7 @@ class LegRule:
     a leg also ends after a turn in place of at least that many steps that a drive follows."""
     on: bool
     min_turn_steps: int
+    after_drives: bool = True  #: legs.after_drives
 
     @staticmethod
     def of(verified_views, noise: NoiseConfig, control_dt: float) -> "LegRule":
@@ -155,13 +168,13 @@ class LegRule:
             # frame leaves (the registration's heading error and one step of corrective turn)
             floor = math.hypot(REGISTERED_SIGMA[2], step)
             steps = int(math.floor((2.0 * floor / step) ** 2)) + 1
-        return LegRule(on, steps)
+        return LegRule(on, steps, bool(legs is None or legs.after_drives))
 
     def ends(self, controls: np.ndarray) -> list[int]:
         """Where a plan's legs end: `leg_ends` when plans run in legs, else [m]."""
         if not self.on:
             return [len(np.asarray(controls).reshape(-1, NU))]
-        return leg_ends(controls, self.min_turn_steps)
+        return leg_ends(controls, self.min_turn_steps, self.after_drives)
 
 
 def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True) -> list[int]:
@@ -170,7 +183,8 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
     at m. A plan with one drive, or none, is one leg unless a turn follows its drive.
     min_turn_steps > 0 (legs.after_turns): a leg also ends after every turn in place
     (omega != 0, v = 0) of at least that many steps that a drive follows, so the frame there
-    fixes the heading before the drive. after_drives=False: only those ends after turns."""
+    fixes the heading before the drive. after_drives=False (legs.after_drives): only those
+    ends after turns."""
     c = np.asarray(controls, float).reshape(-1, NU)
     m = len(c)
     drive = c[:, 0] != 0.0

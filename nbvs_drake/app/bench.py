@@ -270,6 +270,9 @@ def bench_planning(seed: int = 0, clutter: bool = True) -> dict:
     eu.noise.sigma_v, eu.noise.sigma_w = 0.00165, 0.28  # Table 4
     out["eu_plan_s_k500"], res = timed(make_planner(eu, kin, cm))
     out["eu_times_s"], out["eu_feasible"] = res.times, res.stages.get("eu_feasible")
+    # the chosen view (compare it across commits: a faster plan must choose the same)
+    out["eu_q_goal"] = [round(float(v), 6) for v in res.q_goal] if res.q_goal is not None else None
+    out["eu_value"] = res.utility
     ort = copy.deepcopy(sc)
     ort.planner.strategy = Ort(vertices=10_000)
     out["ort_plan_s"], res = timed(make_planner(ort, kin, cm))

@@ -283,7 +283,7 @@ def classify(Q, F, I, H, counter):
     counter[0] += Q.shape[0]
     return out
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, parallel=True)
 def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
     """FREE / COLLIDING / UNKNOWN (int8 (k, L)) of rollout states (k, L, 8) against the nominal
     states of the same steps (L, 8) and their part clearances (c, r (L, parts):
@@ -292,7 +292,8 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
     its self-distances are the nominal's, and each part j of the robot with
     hypot(dx, dy) + r_j |dtheta| < c_j stays clear of the environment; only the other parts are
     tested (as `classify_state` tests them: a ball inside them reaching into a box proves a
-    collision, a part beyond every box's padding is free). Other states get `classify_state`."""
+    collision, a part beyond every box's padding is free). Other states get `classify_state`.
+    The rollouts run on numba's threads, each with its own scratch (the same verdicts)."""
     model = unpack(F, I, H)
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
@@ -315,18 +316,19 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
     for t in range(L):
         nom_free[t] = classify_state(nominal[t], model, scratch) == FREE
     out = np.empty((k_, L), np.int8)
-    fail = np.empty(P, np.bool_)
-    for i in range(k_):
+    counter[0] += k_ * L
+    for i in nb.prange(k_):  # the rollouts on numba's threads, each with its own scratch
+        scratch_i = robot_scratch(model)
+        fail = np.empty(P, np.bool_)
         for t in range(L):
             q = states[i, t]
-            counter[0] += 1
             same = nom_free[t]
             for a in range(3, 8):
                 if q[a] != nominal[t, a]:
                     same = False
                     break
             if not same:
-                out[i, t] = classify_state(q, model, scratch)
+                out[i, t] = classify_state(q, model, scratch_i)
                 continue
             dxy = math.hypot(q[0] - nominal[t, 0], q[1] - nominal[t, 1])
             dth = abs(_wrap(q[2] - nominal[t, 2]))
@@ -337,8 +339,8 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
             if n_fail == 0:
                 out[i, t] = FREE
                 continue
-            pose_robot(q, model, scratch)
-            gp, sw = scratch[1], scratch[2]
+            pose_robot(q, model, scratch_i)
+            gp, sw = scratch_i[1], scratch_i[2]
             v = FREE
             for j in range(P):
                 if not fail[j]:

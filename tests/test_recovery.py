@@ -501,3 +501,21 @@ def _a_frame_then_its_correction(renderer, **verified):  # noqa: F811
         sim.AdvanceTo(0.45)
     return loc, mapper, ctx, b, scan, before
 
+
+
+def test_legs_after_turns_only_end_once_the_turning_since_the_last_end_adds_up():
+    """legs.after_drives false: short turns between drives add up; the leg ends before the
+    drive that follows min_turn_steps turning steps in all (a long turn alone does it)."""
+    from nbvs_drake.world.motion import leg_ends
+    n = 10
+
+    def seq(*parts):  # ("t", steps) turn in place, ("d", steps) drive
+        c = np.concatenate([np.tile([[0.0, 0.5, 0, 0, 0, 0, 0]] if k == "t" else [[0.3, 0, 0, 0, 0, 0, 0]], (s, 1))
+                            for k, s in parts])
+        return c
+    c = seq(("t", 4), ("d", 5), ("t", 4), ("d", 5), ("t", 4), ("d", 5), ("t", 12), ("d", 5))
+    # 4 + 4 + 4 turning steps reach 10 before the third drive; then the long turn alone
+    assert leg_ends(c, n, after_drives=False) == [22, 39, len(c)]
+    # each turn on its own (legs that also end after drives): only the long one
+    assert [e for e in leg_ends(c, n) if c[e - 1, 1] != 0] == [39]
+    assert leg_ends(seq(("t", 12), ("d", 5)), n, after_drives=False) == [12, 17]

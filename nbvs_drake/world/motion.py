@@ -183,8 +183,9 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
     at m. A plan with one drive, or none, is one leg unless a turn follows its drive.
     min_turn_steps > 0 (legs.after_turns): a leg also ends after every turn in place
     (omega != 0, v = 0) of at least that many steps that a drive follows, so the frame there
-    fixes the heading before the drive. after_drives=False (legs.after_drives): only those
-    ends after turns."""
+    fixes the heading before the drive. after_drives=False (legs.after_drives): only ends after
+    turns, and then after the turning steps since the last end add up to min_turn_steps (one
+    long turn or several shorter ones), before the drive that follows them."""
     c = np.asarray(controls, float).reshape(-1, NU)
     m = len(c)
     drive = c[:, 0] != 0.0
@@ -196,8 +197,19 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
         later[:-1] = np.cumsum(base[::-1])[::-1][1:] > 0
     for i in range(m):
         run[i] = (run[i - 1] + 1 if i else 1) if turn[i] else 0
-    ends = [i + 1 for i in range(m - 1) if (after_drives and drive[i] and not drive[i + 1] and later[i])
-            or (min_turn_steps > 0 and turn[i] and drive[i + 1] and run[i] >= min_turn_steps)]
+    if after_drives:
+        ends = [i + 1 for i in range(m - 1) if (drive[i] and not drive[i + 1] and later[i])
+                or (min_turn_steps > 0 and turn[i] and drive[i + 1] and run[i] >= min_turn_steps)]
+        return ends + [m]
+    # after turns only: the heading's spread grows with every turning step since the last
+    # frame, so a leg ends before the drive that follows min_turn_steps of them in all (one
+    # long turn, or several shorter ones between drives)
+    ends, acc = [], 0
+    for i in range(m - 1):
+        acc += int(turn[i])
+        if min_turn_steps > 0 and turn[i] and drive[i + 1] and acc >= min_turn_steps:
+            ends.append(i + 1)
+            acc = 0
     return ends + [m]
 
 

@@ -21,36 +21,35 @@ _FREE_BITS, _OCC_BITS, _INNER_BITS = 0b01, 0b10, 0b11  # child i: free sets bit 
 
 def _serialize(classes: np.ndarray, off: np.ndarray):
     """Pre-order binary node stream of the tree over `classes` (voxel.FREE, UNKNOWN, OCCUPIED)
-    whose voxel (0, 0, 0) has key `off`. Returns (bytes, number of nodes)."""
-    dims = np.array(classes.shape)
-    lo_key, hi_key = off, off + dims  # [lo, hi) per axis
-    out = bytearray()
+    whose voxel (0, 0, 0) has key `off`. Returns (bytes, number of nodes). (Plain Python ints
+    in the recursion: numpy's per-call overhead on 3-element arrays was most of its time.)"""
+    dims = classes.shape
+    lo = tuple(int(v) for v in off)
+    hi = tuple(lo[a] + int(dims[a]) for a in range(3))  # [lo, hi) per axis
+    cls = classes.tolist()
+    free_c, occ_c = int(FREE), int(OCCUPIED)
+    bits_of = {"free": _FREE_BITS, "occ": _OCC_BITS, "inner": _INNER_BITS}
     n_nodes = [0]
 
-    def node(depth, base):
+    def node(depth, bx, by, bz):
         """Returns ('unknown' | 'free' | 'occ' | 'inner', payload bytes)."""
         size = 1 << (TREE_DEPTH - depth)
-        if np.any(base + size <= lo_key) or np.any(base >= hi_key):
+        if (bx + size <= lo[0] or by + size <= lo[1] or bz + size <= lo[2]
+                or bx >= hi[0] or by >= hi[1] or bz >= hi[2]):
             return "unknown", b""
         if size == 1:
-            c = classes[tuple(base - off)]
-            return ("free" if c == FREE else "occ" if c == OCCUPIED else "unknown"), b""
+            c = cls[bx - lo[0]][by - lo[1]][bz - lo[2]]
+            return ("free" if c == free_c else "occ" if c == occ_c else "unknown"), b""
         half = size >> 1
-        kids = []
-        for pos in range(8):
-            child_base = base + half * np.array([pos & 1, (pos >> 1) & 1, (pos >> 2) & 1])
-            kids.append(node(depth + 1, child_base))
-        kinds = [k for k, _ in kids]
-        if all(k == "free" for k in kinds):
-            return "free", b""
-        if all(k == "occ" for k in kinds):
-            return "occ", b""
-        if all(k == "unknown" for k in kinds):
-            return "unknown", b""
+        kids = [node(depth + 1, bx + half * (pos & 1), by + half * ((pos >> 1) & 1), bz + half * ((pos >> 2) & 1))
+                for pos in range(8)]
+        first = kids[0][0]
+        if first != "inner" and all(k == first for k, _ in kids):
+            return first, b""
         lo_byte = hi_byte = 0
         payload = bytearray()
         for i, (kind, data) in enumerate(kids):
-            bits = {"free": _FREE_BITS, "occ": _OCC_BITS, "inner": _INNER_BITS}.get(kind, 0)
+            bits = bits_of.get(kind, 0)
             if i < 4:
                 lo_byte |= bits << (2 * i)
             else:
@@ -61,7 +60,8 @@ def _serialize(classes: np.ndarray, off: np.ndarray):
                 payload += data
         return "inner", bytes([lo_byte, hi_byte]) + bytes(payload)
 
-    kind, data = node(0, np.zeros(3, np.int64))
+    out = bytearray()
+    kind, data = node(0, 0, 0, 0)
     if kind == "inner":
         out += data
         n_nodes[0] += 1  # the root

@@ -275,7 +275,7 @@ def test_expected_utility_with_bulk_rollout_checks_is_algorithm_1s(kin, clutter)
     verdicts = []
     for bulk_checks in (True, False):
         eu = ExpectedUtilityScore(sc, None, MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks), None)
-        eu.state_utility = lambda omap, s, un_total, dist, registration=True: s[:, 0] * dist
+        eu.state_utility = lambda omap, s, un_total, dist, registration=True, coarse=False: s[:, 0] * dist
         out = []
         for g, f in zip(goals, found):
             if f is None:

@@ -113,8 +113,12 @@ class ExpectedUtility:
     #: the weighted standard deviation of the rollouts' utilities about E(x) (with the
     #: "probability" weighting over the rollouts scored: see WEIGHT_FLOOR)
     spread: float = 0.0
-    scored: int = 0  #: rollouts whose final state was scored
-    mask: np.ndarray | None = None  #: which rollouts those are (k,)
+    mask: np.ndarray | None = None  #: the rollouts whose final state was scored (k,)
+
+    @property
+    def scored(self) -> int:
+        """How many rollouts' final states were scored."""
+        return 0 if self.mask is None else int(np.count_nonzero(self.mask))
 
     def to_json(self) -> dict:
         return {"feasible": self.feasible, "eu": self.value, "k": self.rollouts,
@@ -199,21 +203,17 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
         w /= w.sum()
     else:
         w = np.full(k, 1.0 / k)
-    g = np.zeros(k)
     # pos(x) = 0 at a colliding rollout's end; rollouts of negligible weight are not scored
     score = ok & (w >= WEIGHT_FLOOR * w.max()) if weighting == "probability" else ok
-    g[score] = np.asarray(utility(finals[score]), float)
-    value = float(np.dot(w, g))
     ess = float(1.0 / np.sum(w * w))
-    spread = float(np.sqrt(max(np.dot(w, (g - value) ** 2), 0.0)))
-    return ExpectedUtility(True, value, k, checked, collided, finals, g, w, ess, spread, int(np.count_nonzero(score)),
-                           score)
+    return rescored(ExpectedUtility(True, 0.0, k, checked, collided, finals, None, w, ess, mask=score), utility)
 
 
 def rescored(eu: ExpectedUtility, utility: Callable[[np.ndarray], np.ndarray]) -> ExpectedUtility:
-    """The same rollouts (their weights, which were scored) with their final states scored
-    again by `utility`: E(x) of a finer view evaluation (the coarse-to-fine expected utility,
-    `utility.ExpectedUtilityScore`)."""
+    """The rollouts of `eu` (their weights, which are scored: `mask`) with their final states
+    scored by `utility` (g = 0 elsewhere): E(x), the utilities and their spread. Algorithm 1's
+    last step, and the coarse-to-fine expected utility's finer scoring of the same rollouts
+    (`utility.ExpectedUtilityScore`)."""
     g = np.zeros(eu.rollouts)
     g[eu.mask] = np.asarray(utility(eu.final_states[eu.mask]), float)
     value = float(np.dot(eu.weights, g))

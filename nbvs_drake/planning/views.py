@@ -71,7 +71,12 @@ class ViewEvaluator:
         q = np.atleast_2d(q)
         if self.coarse is None or len(q) == 0:
             return self.evaluate(omap, q)
-        met = self.evaluate_poses(omap, self.kin.camera_poses(q), rays=self.coarse)
+        return self._coarse_poses(omap, self.kin.camera_poses(q))
+
+    def _coarse_poses(self, omap: OccupancyMap, X: np.ndarray, **kw) -> np.ndarray:
+        """Metrics of camera poses X from the coarse pass's rays (`evaluate_poses` keywords),
+        the per-ray columns on the scale of this evaluator's ray count."""
+        met = self.evaluate_poses(omap, X, rays=self.coarse, **kw)
         return coarse_to_exact_scale(met, len(self.coarse[0]), len(self.dirs))
 
     def evaluate_ranked(self, omap: OccupancyMap, q: np.ndarray, score) -> tuple[np.ndarray, np.ndarray]:
@@ -89,9 +94,8 @@ class ViewEvaluator:
         X = self.kin.camera_poses(q)
         met = np.zeros((len(q), K.N_METRICS))
         seen = self.may_score(omap, X, getattr(score, "surface_margin", None))
-        coarse = self.evaluate_poses(omap, X[seen], rays=self.coarse, score_only=getattr(score, "per_ray", False),
-                                     roi_margin=getattr(score, "roi_margin", None))
-        met[seen] = coarse_to_exact_scale(coarse, len(self.coarse[0]), len(self.dirs))
+        met[seen] = self._coarse_poses(omap, X[seen], score_only=getattr(score, "per_ray", False),
+                                       roi_margin=getattr(score, "roi_margin", None))
         head = np.argsort(-score(met), kind="stable")[:self.refine_views]
         head = head[seen[head]]
         met[head] = self.evaluate_poses(omap, X[head])

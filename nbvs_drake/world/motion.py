@@ -190,14 +190,13 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
     m = len(c)
     drive = c[:, 0] != 0.0
     turn = (c[:, 1] != 0.0) & ~drive
-    base = drive | turn
-    later = np.zeros(m, bool)  # base motion after step i
-    run = np.zeros(m, int)  # steps of the turn that ends at step i
-    if m:
-        later[:-1] = np.cumsum(base[::-1])[::-1][1:] > 0
-    for i in range(m):
-        run[i] = (run[i - 1] + 1 if i else 1) if turn[i] else 0
     if after_drives:
+        later = np.zeros(m, bool)  # base motion after step i
+        run = np.zeros(m, int)  # steps of the turn that ends at step i
+        if m:
+            later[:-1] = np.cumsum((drive | turn)[::-1])[::-1][1:] > 0
+        for i in range(m):
+            run[i] = (run[i - 1] + 1 if i else 1) if turn[i] else 0
         ends = [i + 1 for i in range(m - 1) if (drive[i] and not drive[i + 1] and later[i])
                 or (min_turn_steps > 0 and turn[i] and drive[i + 1] and run[i] >= min_turn_steps)]
         return ends + [m]

@@ -122,10 +122,18 @@ def test_rollout_verdicts_agree_withdrake_free(kin, clutter):
             continue
         eps = sample_control_noise(rng, sc.noise, controls, 40)
         states = rollout(start, controls[None] + eps, sc.robot.control_dt)[:, 1:]
-        c, r = cert.part_clearances(nominal[1:])
-        v = path_verdicts.rollout_verdicts(np.ascontiguousarray(states), nominal[1:], c, r, *cert.model, model.counter)
+        v = path_verdicts.rollout_verdicts(np.ascontiguousarray(states), np.arange(len(nominal) - 1), nominal[1:],
+                                          path_verdicts.states_free(nominal[1:], *cert.model),
+                                          *cert.part_box_clearances(nominal[1:]), *cert.model, model.counter)
         drake = drake_free(model, states.reshape(-1, 8)).reshape(v.shape)
         assert not np.any((v == FREE) & ~drake) and not np.any((v == COLLIDING) & drake)
+        # a part is tested only against the boxes it may reach: the verdicts of testing all
+        c, r, slack = cert.part_box_clearances(nominal[1:])
+        every = path_verdicts.rollout_verdicts(np.ascontiguousarray(states), np.arange(len(nominal) - 1),
+                                               nominal[1:], path_verdicts.states_free(nominal[1:], *cert.model), c, r,
+                                               np.full_like(slack, -np.inf), *cert.model, model.counter)
+        np.testing.assert_array_equal(v, every)
+        np.testing.assert_array_equal(slack.min(axis=-1), c)
         n_checked += v.size
         n_decided += int(np.sum(v != UNKNOWN))
     assert n_checked > 10_000 and n_decided > 0.95 * n_checked

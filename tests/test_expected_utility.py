@@ -242,3 +242,32 @@ def test_noise_drawn_per_chunk_is_the_noise_drawn_at_once():
     for idx in (np.arange(100), np.arange(100, 300), np.array([3, 7, 250]), np.arange(0)):
         np.testing.assert_array_equal(draws.rows(idx), every[idx])
     assert np.all(every[:, :10, 0] == 0) and np.all(every[:, :10, 1] != 0) and np.all(every[:, 20:25, 2] != 0)
+
+
+def test_rollouts_checked_coarse_to_fine_give_the_verdicts_of_every_state(grazing):
+    """With a tolerated collision rate, the rollouts checked set by set (`chunk_bounds`: a
+    first few, then hundreds) and coarse to fine, each no further than its first collision,
+    give the candidate the feasibility, value and utilities of checking every state of every
+    rollout."""
+    from nbvs_drake.planning.expected_utility import FIRST_CHUNK, chunk_bounds
+    assert chunk_bounds(500, 100) == [(0, FIRST_CHUNK), (FIRST_CHUNK, 100), (100, 200), (200, 300), (300, 400),
+                                      (400, 500)]
+    assert chunk_bounds(7, 100) == [(0, 7)]
+    sc, model, q0, controls = grazing
+    util = lambda s: 1.0 + s[:, 0]  # noqa: E731
+    seen = set()
+    for rate in (0.0, 0.01, 0.05, 0.2, 0.6):
+        for seed in range(4):
+            def run(**kw):
+                return expected_utility(q0, controls, sc.robot.control_dt, 300, NoiseConfig(),
+                                        np.random.default_rng(seed), model.free, util, max_collision_rate=rate, **kw)
+            every = run()
+            coarse = run(block_free=lambda s, steps: model.free(s.reshape(-1, 8)).reshape(s.shape[:2]))
+            assert (coarse.feasible, coarse.value) == (every.feasible, every.value)
+            if every.feasible:
+                np.testing.assert_array_equal(coarse.utilities, every.utilities)
+                assert coarse.collided_rollouts == every.collided_rollouts
+            else:
+                assert coarse.rollouts_checked <= every.rollouts_checked
+            seen.add(every.feasible)
+    assert seen == {True, False}

@@ -33,8 +33,10 @@ def warm_kernels() -> float:
     cm.bulk_edges(q[:1], q[1:], rc)
     steer_kernels.edge_lengths(q[:1], q[1:], w, rc)
     neighbours.knn(q, q, w, 1, False)
-    c, r = cert.part_clearances(q)
-    path_verdicts.rollout_verdicts(np.ascontiguousarray(q[None]), q, c, r, *cert.model, cm.counter)
+    cert.part_clearances(q)
+    path_verdicts.rollout_verdicts(np.ascontiguousarray(q[None]), np.arange(len(q)), q,
+                                   path_verdicts.states_free(q, *cert.model), *cert.part_box_clearances(q),
+                                   *cert.model, cm.counter)
     grid = neighbours.TreeGrid(sc.robot.xy_bounds, len(q))
     grid.insert(q, 1)
     tree_growth.tree_extensions(q, np.full((len(q), cert.margin_size), -1.0), q[1:], w, 1.0, rc, kin.arm_lower,

@@ -201,8 +201,20 @@ class FreeCertificate:
         """(c, r), each (N, parts), of `_part_clearances` at states (N, 8)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
         c, r = np.empty((len(q), self.n_parts())), np.empty((len(q), self.n_parts()))
-        _part_clearances(q, *self.model, c, r)
+        _part_clearances(q, *self.model, c, r, np.empty((0, 0, 0)))
         return c, r
+
+    def part_box_clearances(self, q: np.ndarray):
+        """(c, r, slack) at states (N, 8): `part_clearances`' c and r, and per part the
+        clearance from each of the environment's boxes (slack (N, parts, boxes); c is its
+        minimum): a planar rigid motion that moves part j by less than slack[n, j, m] keeps it
+        clear of box m (`path_verdicts.rollout_verdicts` tests a part only against the boxes it
+        may reach)."""
+        q = np.ascontiguousarray(np.atleast_2d(q), dtype=np.float64)
+        P, M = self.n_parts(), len(self.e_p)
+        c, r, slack = np.empty((len(q), P)), np.empty((len(q), P)), np.empty((len(q), P, M))
+        _part_clearances(q, *self.model, c, r, slack)
+        return c, r, slack
 
 
 def _body_index(i: int):
@@ -699,19 +711,21 @@ def _certify(q, F, I, H, out):
 
 
 @nb.njit(cache=True)
-def _part_clearances(q, F, I, H, c, r):
+def _part_clearances(q, F, I, H, c, r, slack):
     """Per part of the robot (each sphere of a geometry that is not a vertical cylinder, then
     each vertical cylinder), at each state q[n]: c[n, j] a lower bound of the part's distance to
     the environment less the padding (inf: filtered against it) and r[n, j] the largest
     horizontal distance of a point of the part from the base's vertical axis. A planar rigid
     motion of the whole robot by (dx, dy, dtheta) about that axis moves no point of part j more
     than hypot(dx, dy) + r_j |dtheta|, so the part stays clear of the environment while that is
-    below c_j; the robot's self-distances do not change under such a motion."""
+    below c_j; the robot's self-distances do not change under such a motion. slack (N, parts,
+    boxes), when it has rows: the same bound per environment box (c is its minimum)."""
     model = unpack(F, I, H)
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
     scratch = robot_scratch(model)
     G, M = g_body.shape[0], e_p.shape[0]
+    per_box = slack.shape[0] > 0
     for n in range(q.shape[0]):
         qn = q[n]
         pose_robot(qn, model, scratch)
@@ -722,20 +736,28 @@ def _part_clearances(q, F, I, H, c, r):
             if g_vert[g]:
                 c[n, j] = np.inf
                 r[n, j] = math.hypot(gp[g, 0] - qn[0], gp[g, 1] - qn[1]) + g_r[g]
-                if pad != -np.inf:
-                    for m in range(M):
-                        if e_zal[m]:
-                            d = vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m)
-                        else:
-                            d = point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g]
-                        c[n, j] = min(c[n, j], d - pad - EPS)
+                for m in range(M):
+                    if pad == -np.inf:
+                        v = np.inf
+                    elif e_zal[m]:
+                        v = vertical_cylinder_box(gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m
+                                                  ) - pad - EPS
+                    else:
+                        v = point_box(gp[g, 0], gp[g, 1], gp[g, 2], e_R, e_p, e_h, m) - g_bound[g] - pad - EPS
+                    c[n, j] = min(c[n, j], v)
+                    if per_box:
+                        slack[n, j, m] = v
                 j += 1
                 continue
             for k in range(s0[g], s0[g + 1]):
                 c[n, j] = np.inf
                 r[n, j] = math.hypot(sw[k, 0] - qn[0], sw[k, 1] - qn[1]) + s_rho[k]
-                if pad != -np.inf:
-                    for m in range(M):
-                        c[n, j] = min(c[n, j], point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m)
-                                      - s_rho[k] - pad - EPS)
+                for m in range(M):
+                    if pad == -np.inf:
+                        v = np.inf
+                    else:
+                        v = point_box(sw[k, 0], sw[k, 1], sw[k, 2], e_R, e_p, e_h, m) - s_rho[k] - pad - EPS
+                    c[n, j] = min(c[n, j], v)
+                    if per_box:
+                        slack[n, j, m] = v
                 j += 1

@@ -40,6 +40,9 @@ from ..world.pose import EXACT_POSE_VAR, apply_corrections
 #: the coarse pass over a chunk of rollouts checks every COARSE_STEP-th step (and the last)
 COARSE_STEP = 8
 
+#: the rollouts drawn and checked first (`chunk_bounds`)
+FIRST_CHUNK = 20
+
 #: with the "probability" weighting, a rollout whose normalised weight is below this share of
 #: the largest is not scored: the k rollouts dropped so move E(x) by less than k times this
 #: share of the largest utility (5e-7 of it at k = 500), while the weights put almost all mass
@@ -56,6 +59,14 @@ def coarse_to_fine(m: int) -> list[np.ndarray]:
     coarse[COARSE_STEP - 1::COARSE_STEP] = True
     coarse[m - 1] = False
     return [np.array([m - 1]), np.flatnonzero(coarse), np.flatnonzero(~coarse)[:-1]]
+
+
+def chunk_bounds(k: int, chunk: int) -> list[tuple[int, int]]:
+    """The rollouts 0..k-1 in the sets they are drawn, rolled out and checked: FIRST_CHUNK
+    first (most candidates that collide are ruled out by a few rollouts), then up to each
+    multiple of `chunk`."""
+    cuts = sorted({0, k, min(FIRST_CHUNK, k), *range(chunk, k, chunk)})
+    return list(zip(cuts[:-1], cuts[1:]))
 
 
 def sample_count_bound(alpha: float, gamma: float, eta: float = 1 / 0.997) -> int:
@@ -141,10 +152,11 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     scan has corrected since the last plan spreads the rollouts' final states accordingly.
     None or zero: Algorithm 1's exactly known start x_c.
     block_free(states (c, L, 8), steps (L,)) -> bool (c, L), optional: the same check given the
-    states of c rollouts at the steps `steps` (1..m) of the plan; with it and no collision
-    allowed, each chunk of rollouts is checked coarse to fine (their final states, every
-    COARSE_STEP-th step, the rest) and stops at the first colliding rollout: the verdict is the
-    same, `collided_rollouts` then counts the colliding rollouts found before it stopped.
+    states of c rollouts at the steps `steps` (1..m) of the plan; with it each set of rollouts
+    (`chunk_bounds`) is checked coarse to fine (their final states, every COARSE_STEP-th
+    step, the rest), a rollout no further than its first collision, and checking stops once
+    more than the allowed share collide: the verdict is the same as checking every state,
+    `collided_rollouts` then counts the colliding rollouts found before it stopped.
     start_free(states (k, 8)) -> bool (k,), optional, with a start_cov: the rollouts whose
     start (a draw of the belief's spread) collides are dropped, since the robot stands free
     (the belief conditioned on no collision); the candidate is unfeasible when every start
@@ -173,25 +185,28 @@ def expected_utility(q0: np.ndarray, controls: np.ndarray, dt: float, k: int, no
     finals = np.zeros((k, 8))
     checked = collided = 0
     eps = []
-    for start in range(0, k, chunk):
+    for start, stop in chunk_bounds(k, chunk):
         # this chunk's rollouts (each row its own: the same states as all k at once), so that
-        # a candidate ruled out by its first chunk does not draw or roll out the others
-        eps.append(draws.rows(rows[start:start + chunk]))
-        states = rollout(q0[start:start + chunk], controls[None] + eps[-1], dt)
-        finals[start:start + len(states)] = states[:, -1]
+        # a candidate ruled out by its first rollouts does not draw or roll out the others
+        eps.append(draws.rows(rows[start:stop]))
+        states = rollout(q0[start:stop], controls[None] + eps[-1], dt)
+        finals[start:stop] = states[:, -1]
         block = states[:, 1:]  # intermediate and final states
         checked += len(block)
-        if block_free is not None and allowed == 0:
+        if block_free is not None:
+            # coarse to fine, each rollout until its first collision; the rollouts' verdicts
+            # are those of checking every state, and checking stops once too many collide
             bad = np.zeros(len(block), bool)
             for cols in coarse_to_fine(block.shape[1]):
-                bad |= ~block_free(block[:, cols], cols + 1).all(axis=1)
-                if bad.any():
+                live = np.flatnonzero(~bad)
+                bad[live] = ~block_free(block[live][:, cols], cols + 1).all(axis=1)
+                if collided + np.count_nonzero(bad) > allowed:
                     break
-            ok[start:start + len(block)] = ~bad
+            ok[start:stop] = ~bad
         else:
             free = state_free(block.reshape(-1, 8)).reshape(block.shape[:2])
-            ok[start:start + len(block)] = free.all(axis=1)
-        collided = int(np.count_nonzero(~ok[:start + len(block)]))
+            ok[start:stop] = free.all(axis=1)
+        collided = int(np.count_nonzero(~ok[:stop]))
         if collided > allowed:
             return ExpectedUtility(False, 0.0, k, checked, collided)
     if weighting == "probability":

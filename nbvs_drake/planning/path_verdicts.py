@@ -283,17 +283,38 @@ def classify(Q, F, I, H, counter):
     counter[0] += Q.shape[0]
     return out
 
+#: `rollout_verdicts` skips a box whose clearance from a part exceeds the part's motion bound
+#: by more than this (m): far above the rounding of either, so the verdicts are those of
+#: testing every box
+NEAR_MARGIN = 1e-9
+
+
+@nb.njit(cache=True)
+def states_free(Q, F, I, H):
+    """Whether each of the states (N, 8) is proved FREE by `classify_state` (bool (N,); not
+    counted: `rollout_verdicts`' nominal states)."""
+    model = unpack(F, I, H)
+    scratch = robot_scratch(model)
+    out = np.empty(Q.shape[0], np.bool_)
+    for i in range(Q.shape[0]):
+        out[i] = classify_state(Q[i], model, scratch) == FREE
+    return out
+
 @nb.njit(cache=True, parallel=True)
-def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
-    """FREE / COLLIDING / UNKNOWN (int8 (k, L)) of rollout states (k, L, 8) against the nominal
-    states of the same steps (L, 8) and their part clearances (c, r (L, parts):
-    `certificate._part_clearances`). A state whose arm equals the nominal's, at a step whose
-    nominal state is proved free, differs from it by a planar rigid motion of the whole robot:
-    its self-distances are the nominal's, and each part j of the robot with
-    hypot(dx, dy) + r_j |dtheta| < c_j stays clear of the environment; only the other parts are
-    tested (as `classify_state` tests them: a ball inside them reaching into a box proves a
-    collision, a part beyond every box's padding is free). Other states get `classify_state`.
-    The rollouts run on numba's threads, each with its own scratch (the same verdicts)."""
+def rollout_verdicts(states, steps, nominal, nom_free, c, r, slack, F, I, H, counter):
+    """FREE / COLLIDING / UNKNOWN (int8 (k, L)) of rollout states (k, L, 8) at the plan's steps
+    `steps` (L,: rows of the others) against the plan's nominal states (n, 8), whether each is
+    proved free (nom_free (n,): `states_free`) and their part clearances (c, r (n, parts),
+    slack (n, parts, boxes): `Certificate.part_box_clearances`; rows not in `steps` are not
+    read). A state whose arm equals the nominal's, at a step whose nominal state is proved free,
+    differs from it by a planar rigid motion of the whole robot: its self-distances are the
+    nominal's, and each part j of the robot with hypot(dx, dy) + r_j |dtheta| < c_j stays clear
+    of the environment; only the other parts are tested (as `classify_state` tests them: a ball
+    inside them reaching into a box proves a collision, a part beyond every box's padding is
+    free), each only against the boxes whose clearance from it the motion may use up (slack
+    within NEAR_MARGIN of its bound: the others' tests cannot fire, so the verdicts are those of
+    testing every box). Other states get `classify_state`. The rollouts run on numba's threads,
+    each with its own scratch (the same verdicts)."""
     model = unpack(F, I, H)
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
@@ -312,23 +333,21 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
                 part_g[j], part_s[j] = g, k
                 j += 1
     k_, L = states.shape[0], states.shape[1]
-    nom_free = np.empty(L, np.bool_)
-    for t in range(L):
-        nom_free[t] = classify_state(nominal[t], model, scratch) == FREE
     out = np.empty((k_, L), np.int8)
     counter[0] += k_ * L
     for i in nb.prange(k_):  # the rollouts on numba's threads, each with its own scratch
         scratch_i = robot_scratch(model)
         fail = np.empty(P, np.bool_)
-        for t in range(L):
-            q = states[i, t]
+        for tt in range(L):
+            q = states[i, tt]
+            t = steps[tt]
             same = nom_free[t]
             for a in range(3, 8):
                 if q[a] != nominal[t, a]:
                     same = False
                     break
             if not same:
-                out[i, t] = classify_state(q, model, scratch_i)
+                out[i, tt] = classify_state(q, model, scratch_i)
                 continue
             dxy = math.hypot(q[0] - nominal[t, 0], q[1] - nominal[t, 1])
             dth = abs(_wrap(q[2] - nominal[t, 2]))
@@ -337,7 +356,7 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
                 fail[j] = dxy + r[t, j] * dth >= c[t, j]
                 n_fail += fail[j]
             if n_fail == 0:
-                out[i, t] = FREE
+                out[i, tt] = FREE
                 continue
             pose_robot(q, model, scratch_i)
             gp, sw = scratch_i[1], scratch_i[2]
@@ -347,7 +366,10 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
                     continue
                 g, kk = part_g[j], part_s[j]
                 pad = g_pad[g]
+                reach = dxy + r[t, j] * dth + NEAR_MARGIN
                 for m in range(M):
+                    if slack[t, j, m] > reach:  # out of the part's reach
+                        continue
                     if kk < 0:  # a vertical cylinder
                         if pad >= 0.0 and e_exact[m] and e_zal[m] and vertical_cylinder_box_overlap(
                                 gp[g, 0], gp[g, 1], gp[g, 2], g_r[g], g_h[g], e_R, e_p, e_h, m, EPS):
@@ -368,5 +390,5 @@ def rollout_verdicts(states, nominal, c, r, F, I, H, counter):
                             v = UNKNOWN
                 if v == COLLIDING:
                     break
-            out[i, t] = v
+            out[i, tt] = v
     return out

@@ -164,6 +164,13 @@ class Roadmap:
         if keep.all() and len(self.V) == n:
             return
         self.V = self.V[:n]
+        first = int(np.argmin(keep)) if not keep.all() else len(keep)
+        if not keep[first:].any():  # the query's edges, added after the roadmap's: drop their keys
+            for a, b in zip(self.src[first:].tolist(), self.dst[first:].tolist()):
+                del self._index[(a, b)]
+            self.src, self.dst, self.length, self.state = (self.src[:first], self.dst[:first], self.length[:first],
+                                                           self.state[:first])
+            return
         self.src, self.dst, self.length, self.state = (self.src[keep], self.dst[keep], self.length[keep],
                                                        self.state[keep])
         self._index = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(self.src, self.dst))}

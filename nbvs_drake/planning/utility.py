@@ -87,13 +87,25 @@ class ExpectedUtilityScore:
         cert = obstacles.collision.certificate
         if cert is None or not self.motion.bulk_checks:
             return lambda s, steps: np.full(s.shape[:2], UNKNOWN, np.int8)
-        t = time.perf_counter()
         nominal = np.ascontiguousarray(nominal, float)
-        c, r = cert.part_clearances(nominal)
-        self.checks_s += time.perf_counter() - t
         col = obstacles.collision
-        return lambda s, steps: path_verdicts.rollout_verdicts(np.ascontiguousarray(s, float), nominal[steps - 1],
-                                                      c[steps - 1], r[steps - 1], *cert.model, col.counter)
+        # per nominal state, found once for all the rollouts where they are first asked: whether
+        # it is proved free, and its parts' clearances
+        P, M = cert.n_parts(), len(cert.e_p)
+        known = np.zeros(len(nominal), bool)
+        nom_free = np.zeros(len(nominal), bool)
+        c, r, slack = np.empty((len(nominal), P)), np.empty((len(nominal), P)), np.empty((len(nominal), P, M))
+
+        def verdicts(s, steps):
+            i = steps - 1
+            new = i[~known[i]]
+            if len(new):
+                nom_free[new] = path_verdicts.states_free(nominal[new], *cert.model)
+                c[new], r[new], slack[new] = cert.part_box_clearances(nominal[new])
+                known[new] = True
+            return path_verdicts.rollout_verdicts(np.ascontiguousarray(s, float), np.ascontiguousarray(i, np.int64),
+                                                  nominal, nom_free, c, r, slack, *cert.model, col.counter)
+        return verdicts
 
     def registered_cov(self, belief_cov=None) -> np.ndarray:
         """The registration's own spread (planner.eu_registered_sigma), plus the belief's

@@ -74,6 +74,7 @@ class RobotKinematics:
         link5 = plant.GetBodyByName("katana_link5")
         self.X_L5C = _X(plant.CalcRelativeTransform(ctx, link5.body_frame(), cam.body_frame()))
         self._ctx = ctx
+        self._first_vertical: bool | None = None
 
     # ---- layout --------------------------------------------------------------------
     def to_positions(self, q: np.ndarray) -> np.ndarray:
@@ -90,7 +91,12 @@ class RobotKinematics:
     def first_joint_vertical(self) -> bool:
         """Whether the arm's first joint turns about the base's vertical axis, with no rotation
         between the base and it (`turned_about_mount` and the director-ray test's arm-plane
-        pretest rely on it)."""
+        pretest rely on it). Read off the URDF once."""
+        if self._first_vertical is None:
+            self._first_vertical = self._first_joint_is_vertical()
+        return self._first_vertical
+
+    def _first_joint_is_vertical(self) -> bool:
         X0, axis = self.joint_fixed[0]
         return bool(np.allclose(axis / np.linalg.norm(axis), [0.0, 0.0, 1.0]) and np.allclose(X0[:3, :3], np.eye(3)))
 

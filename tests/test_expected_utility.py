@@ -258,7 +258,7 @@ def test_rollouts_checked_coarse_to_fine_give_the_verdicts_of_every_state(grazin
     seen = set()
     for rate in (0.0, 0.01, 0.05, 0.2, 0.6):
         for seed in range(4):
-            def run(**kw):
+            def run(seed=seed, rate=rate, **kw):
                 return expected_utility(q0, controls, sc.robot.control_dt, 300, NoiseConfig(),
                                         np.random.default_rng(seed), model.free, util, max_collision_rate=rate, **kw)
             every = run()

@@ -318,7 +318,6 @@ def rollout_verdicts(states, steps, nominal, nom_free, c, r, slack, F, I, H, cou
     model = unpack(F, I, H)
     (X_PF, axes, g_body, g_X, g_vert, g_r, g_h, g_bound, g_pad, s0, s_geom, s_c, s_rho, s_in, e_R, e_p, e_h, e_zal,
      e_exact, pairs, pair_pad) = model
-    scratch = robot_scratch(model)
     G, M = g_body.shape[0], e_p.shape[0]
     P = c.shape[1]
     part_g = np.empty(P, np.int64)

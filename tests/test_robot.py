@@ -61,3 +61,20 @@ def test_turned_about_the_mount_keeps_the_camera_pose(kin):
     assert np.isnan(kin.turned_about_mount(q, [-0.2])[0, 0])  # 3.0 or 3.0 - 2 pi
     t = kin.turned_about_mount(q, [-0.5])[0]  # 3.3 - 2 pi
     np.testing.assert_allclose(t[3], 3.3 - 2 * np.pi)
+
+
+def test_scalar_wrap_and_path_length_are_bit_for_bit_the_array_ones():
+    """The motion planner's scalar angle wrap and its eq. 8 length give the same floats as the
+    array forms they replace (a steering path's length decides which option is tried first)."""
+    import math
+    from nbvs_drake.world.motion import path_length, wrap_angle, wrap_scalar
+    rs = np.random.default_rng(0)
+    for v in [*rs.normal(size=20000) * 10, 0.0, -0.0, math.pi, -math.pi, 2 * math.pi, 3 * math.pi, 1e-300]:
+        a = float(wrap_angle(v))
+        assert wrap_scalar(v) == a and math.copysign(1.0, wrap_scalar(v)) == math.copysign(1.0, a)
+    for i in range(300):
+        s = rs.normal(size=(int(rs.integers(2, 200)), 8)) * rs.uniform(0.01, 10)
+        w = rs.uniform(0, 10, 8)
+        d = np.diff(s, axis=0)
+        d[:, 2] = wrap_angle(d[:, 2])
+        assert path_length(s, list(w)) == float(np.sum(np.sqrt(np.sum(w * d * d, axis=1))))

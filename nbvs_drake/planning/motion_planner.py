@@ -179,7 +179,7 @@ class MotionPlanner:
         extensions), then the whole path at `max_step` resolution; a path that fails only
         because its start state is in collision is accepted when it leaves the collision
         within the escape prefix and is free from there on."""
-        if not np.all(self.kin.arm_within_limits(states)):
+        if not self.kin.all_within_limits(states):
             return False
         v = self._bulk(states, obstacles, max_step)
         if v != UNKNOWN:
@@ -196,7 +196,7 @@ class MotionPlanner:
         batched: arm limits, the end states in one batch, the paths of the survivors in two
         (`CollisionModel.paths_free`); a path that fails there and starts in collision gets
         the escape-prefix test of `path_free`."""
-        ok = np.array([bool(np.all(self.kin.arm_within_limits(s))) for s in paths], bool)
+        ok = np.array([self.kin.all_within_limits(s) for s in paths], bool)
         undecided = ok.copy()
         asks = {}  # path -> the interpolated states the model cannot decide (its first is FREE)
         bulk_ok = self.bulk_checks and obstacles.collision.certificate is not None
@@ -271,16 +271,10 @@ class MotionPlanner:
         turned goal."""
         rc, p = self.sc.robot, self.sc.planner
         h = goal[2] + np.arange(1, GOAL_HEADINGS) * (2 * np.pi / GOAL_HEADINGS)
-        twins = [self.kin.turned_about_mount(goal, h)]
-        for back in (0.0, np.pi):
-            t = goal
-            for _ in range(3):  # turning moves the base: a few fixed-point steps
-                a = np.arctan2(t[1] - q0[1], t[0] - q0[0]) + back
-                t = self.kin.turned_about_mount(goal, [a])[0]
-                if np.isnan(t[0]):
-                    break
-            twins.append(t[None])
-        twins = np.vstack(twins)
+        t = np.array([goal, goal], float)  # facing the travel forward, and backward
+        for _ in range(3):  # turning moves the base: a few fixed-point steps (a NaN row stays NaN)
+            t = self.kin.turned_about_mount(goal, np.arctan2(t[:, 1] - q0[1], t[:, 0] - q0[0]) + (0.0, np.pi))
+        twins = np.vstack([self.kin.turned_about_mount(goal, h), t])
         twins = twins[~np.isnan(twins[:, 0])]
         if len(twins) == 0:
             return []

@@ -18,6 +18,11 @@ def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+def wrap_scalar(a: float) -> float:
+    """`wrap_angle` of one angle, as a float (the same value: Python's float % is numpy's)."""
+    return (float(a) + math.pi) % (2 * math.pi) - math.pi
+
+
 @dc.dataclass(frozen=True)
 class ControlSequence:
     """tau = {u_1..u_m}: each row [v, w_b, w_1..w_5] is held for dt. plan_id identifies the
@@ -79,9 +84,10 @@ def rollout(q0: np.ndarray, controls: np.ndarray, dt: float) -> np.ndarray:
 
 def path_length(states: np.ndarray, weights) -> float:
     """rho = sum_i sqrt(sum_j w_j (x_i(a_j) - x_{i-1}(a_j))^2), eq. 8 (base angle wrapped)."""
-    d = np.diff(np.asarray(states, float), axis=0)
-    d[:, 2] = wrap_angle(d[:, 2])
-    return float(np.sum(np.sqrt(np.sum(np.asarray(weights) * d * d, axis=1))))
+    s = np.asarray(states, float)
+    d = s[1:] - s[:-1]
+    d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi  # wrap_angle
+    return float(np.sqrt((np.asarray(weights, float) * d * d).sum(axis=1)).sum())
 
 
 # --------------------------------------------------------------------------------------
@@ -225,10 +231,10 @@ def _base_phases(q0, q1):
     dx, dy = q1[0] - q0[0], q1[1] - q0[1]
     d = math.hypot(dx, dy)
     if d < 1e-4:
-        return [(float(wrap_angle(q1[2] - q0[2])), 0.0, 0.0)]
+        return [(wrap_scalar(q1[2] - q0[2]), 0.0, 0.0)]
     phi = math.atan2(dy, dx)
-    fwd = (float(wrap_angle(phi - q0[2])), d, float(wrap_angle(q1[2] - phi)))
-    back = (float(wrap_angle(phi + math.pi - q0[2])), -d, float(wrap_angle(q1[2] - phi - math.pi)))
+    fwd = (wrap_scalar(phi - q0[2]), d, wrap_scalar(q1[2] - phi))
+    back = (wrap_scalar(phi + math.pi - q0[2]), -d, wrap_scalar(q1[2] - phi - math.pi))
     cost = lambda p: abs(p[0]) + abs(p[2])  # noqa: E731
     return [fwd, back] if cost(fwd) <= cost(back) else [back, fwd]
 
@@ -307,7 +313,7 @@ def _arc_base(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | N
     best, best_turn = None, np.inf
     for sign in (1.0, -1.0):  # forward, backward: the direction of travel is heading (+ pi)
         h0 = q0[2] + (0.0 if sign > 0 else math.pi)
-        f0, f2 = float(wrap_angle(phi - h0)), float(wrap_angle(q1[2] + (0.0 if sign > 0 else math.pi) - phi))
+        f0, f2 = wrap_scalar(phi - h0), wrap_scalar(q1[2] + (0.0 if sign > 0 else math.pi) - phi)
         if f0 * f2 <= 0.0:
             continue
         alpha = f0 if abs(f0) <= abs(f2) else f2  # the arc's chord angle: the smaller turn
@@ -325,7 +331,7 @@ def _arc_base(q0: np.ndarray, q1: np.ndarray, rc: RobotConfig) -> np.ndarray | N
             n += 1
         else:
             continue
-        post = float(wrap_angle(q1[2] - (q0[2] + pre + n * delta)))
+        post = wrap_scalar(q1[2] - (q0[2] + pre + n * delta))
         turn = abs(pre) + abs(post)
         if turn < best_turn:
             arc = np.zeros((n, NU))

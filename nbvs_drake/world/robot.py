@@ -75,6 +75,7 @@ class RobotKinematics:
         self.X_L5C = _X(plant.CalcRelativeTransform(ctx, link5.body_frame(), cam.body_frame()))
         self._ctx = ctx
         self._first_vertical: bool | None = None
+        self._limits = None  # the arm's limits with all_within_limits' tolerance
 
     # ---- layout --------------------------------------------------------------------
     def to_positions(self, q: np.ndarray) -> np.ndarray:
@@ -127,6 +128,14 @@ class RobotKinematics:
         out[:, 3] = j1[pick, np.arange(len(headings))]
         out[~ok.any(axis=0)] = np.nan
         return out
+
+    def all_within_limits(self, q: np.ndarray) -> bool:
+        """Whether every state of q (..., 8) has its arm within the limits
+        (`arm_within_limits` of them all)."""
+        if self._limits is None:
+            self._limits = (self.arm_lower - 1e-9, self.arm_upper + 1e-9)
+        a = np.asarray(q, float)[..., 3:]
+        return bool(((a >= self._limits[0]) & (a <= self._limits[1])).all())
 
     def arm_within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
         q = np.asarray(q, float)

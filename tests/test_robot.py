@@ -67,6 +67,7 @@ def test_scalar_wrap_and_path_length_are_bit_for_bit_the_array_ones():
     """The motion planner's scalar angle wrap and its eq. 8 length give the same floats as the
     array forms they replace (a steering path's length decides which option is tried first)."""
     import math
+
     from nbvs_drake.world.motion import path_length, wrap_angle, wrap_scalar
     rs = np.random.default_rng(0)
     for v in [*rs.normal(size=20000) * 10, 0.0, -0.0, math.pi, -math.pi, 2 * math.pi, 3 * math.pi, 1e-300]:

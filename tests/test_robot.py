@@ -73,7 +73,7 @@ def test_scalar_wrap_and_path_length_are_bit_for_bit_the_array_ones():
     for v in [*rs.normal(size=20000) * 10, 0.0, -0.0, math.pi, -math.pi, 2 * math.pi, 3 * math.pi, 1e-300]:
         a = float(wrap_angle(v))
         assert wrap_scalar(v) == a and math.copysign(1.0, wrap_scalar(v)) == math.copysign(1.0, a)
-    for i in range(300):
+    for _ in range(300):
         s = rs.normal(size=(int(rs.integers(2, 200)), 8)) * rs.uniform(0.01, 10)
         w = rs.uniform(0, 10, 8)
         d = np.diff(s, axis=0)

@@ -40,6 +40,38 @@ def test_prediction_fit_and_prediction_fields():
     assert np.isnan(prediction_fit(recs[:3])["r2"])  # two pairs: no fit
     p = plan_prediction({"info": 0.1, "un_o": 10, "un_touched": 30, "overlap": 0.4}, 0.02 ** 3)
     assert p["revealed_m3"] == pytest.approx(30 * 0.02 ** 3) and p["overlap"] == 0.4
+    p = plan_prediction({"info": 0.1, "un_o": 10, "un_touched": 30, "un_near": 12, "overlap": 0.4}, 0.02 ** 3)
+    assert p["revealed_m3"] == pytest.approx(42 * 0.02 ** 3) and p["un_near"] == 12
+
+
+def test_a_kinect_view_clears_the_unknown_space_within_its_minimum_range(kin):
+    """The Kinect's returning rays cross 0.7 m before any depth counts; the unknown voxels
+    there are revealed by the scan, and a plan's prediction counts them
+    (`ViewEvaluator.near_range_unknown`): all of the near range's unknown voxels in an
+    unknown map, none in a map that knows them free, none behind a surface nearer than the
+    minimum range (the ray is blind)."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    from nbvs_drake.planning.views import ViewEvaluator
+    from nbvs_drake.world.sensor import resolve_sensor
+    sc = load_scenario(settings=["sensor.preset=kinect"])
+    ev = ViewEvaluator(kin, sc)
+    q = np.array(sc.robot.start, float)
+    omap = OccupancyMap.for_scenario(sc)
+    n_unknown = ev.near_range_unknown(omap, q)
+    z_near = resolve_sensor(sc.sensor).z_near
+    X = kin.camera_poses(q[None])[0]
+    # the near range's frustum, as far as it lies in the map, is at least a few hundred voxels
+    assert n_unknown > 300
+    free = OccupancyMap(omap.spec, omap.model, np.full(omap.spec.dims, -5.0, np.float32))  # every voxel free
+    assert ev.near_range_unknown(free, q) == 0
+    _, inside = omap.spec.voxel_index(X[:3, 3] + 0.3 * X[:3, 2] + np.zeros((1, 3)))
+    assert z_near > 0.3 and inside[0]
+    depth = (omap.spec.centers() - X[:3, 3]) @ X[:3, 2]
+    lo = np.zeros(omap.spec.dims, np.float32)
+    lo[(depth > 0.28) & (depth < 0.32)] = 5.0  # a surface 0.3 m in front of the camera: every ray blind
+    wall = OccupancyMap(omap.spec, omap.model, lo)
+    assert ev.near_range_unknown(wall, q) < 0.05 * n_unknown
 
 
 def test_a_run_records_predictions_and_outcomes(tmp_path):

@@ -45,11 +45,13 @@ def scan_outcome(prev, cur) -> dict:
 def plan_prediction(factors: dict, voxel_volume: float) -> dict:
     """What a plan predicted for its scan: the information term, the unknown voxels its
     simulated scan sees first (un_o) and touches (un_touched: every distinct unknown voxel its
-    rays cross before an occupied voxel, the volume it expects to reveal), and the overlap
-    with known surface it expects."""
+    rays cross before an occupied voxel, with those its returning rays cross within the
+    sensor's minimum range, un_near: the volume it expects to reveal), and the overlap with
+    known surface it expects."""
     touched = factors.get("un_touched", factors.get("un_o", 0))
-    return {"info": factors.get("info"), "un_o": factors.get("un_o"), "un_touched": touched,
-            "revealed_m3": touched * voxel_volume, "overlap": factors.get("overlap")}
+    near = factors.get("un_near", 0)
+    return {"info": factors.get("info"), "un_o": factors.get("un_o"), "un_touched": touched, "un_near": near,
+            "revealed_m3": (touched + near) * voxel_volume, "overlap": factors.get("overlap")}
 
 
 def prediction_fit(records: list[dict], key: str = "revealed_m3") -> dict:

@@ -54,8 +54,8 @@ def view_result(sc: Scenario, evaluator: ViewEvaluator, omap: OccupancyMap, q: n
     return PlanResult("ok", reached_goal(sc, q, states), controls, states, kind, float(du), {
         "pos": 1.0, "reg": reg, "info": info, "metric": p.metric, "dist": float(dist), "rho": float(rho),
         "un_o": int(met[0, K.M_UN_O]), "un_touched": int(met[0, K.M_UN_O] + met[0, K.M_N_POSTERIOR]),
-        "oc_o": int(met[0, K.M_OC_O]), "overlap": overlap,
-        "un_total": int(un_total), "du": float(du)}, path_nodes=getattr(found, "nodes", 2))
+        "oc_o": int(met[0, K.M_OC_O]), "overlap": overlap, "un_total": int(un_total), "du": float(du),
+        "un_near": evaluator.near_range_unknown(omap, q)}, path_nodes=getattr(found, "nodes", 2))
 
 
 def one_at_a_time(candidates, skip):

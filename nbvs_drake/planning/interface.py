@@ -18,9 +18,11 @@ from ..mapping.occupancy import OccupancyMap
 #: planner.metric, named in `metric`); rho: the path's length (eq. 8); du: the deterministic
 #: utility; eu: the expected utility's summary (utility "eu"); un_o, un_touched, oc_o, overlap,
 #: un_total: the simulated scan's unknown voxels seen first and touched, its occupied voxels,
-#: its registration overlap and the map's unknown voxels
+#: its registration overlap and the map's unknown voxels; un_near: the chosen view's unknown
+#: voxels within the sensor's minimum range that its returning rays clear
+#: (`ViewEvaluator.near_range_unknown`, for the plan's prediction)
 FACTOR_NAMES = ("pos", "reg", "info", "metric", "dist", "rho", "du", "eu", "un_o", "un_touched", "oc_o", "overlap",
-                "un_total")
+                "un_total", "un_near")
 
 
 @dc.dataclass(frozen=True)

@@ -155,5 +155,6 @@ class ORTPlanner:
         times["motion_planning_s"] += times["tree_s"]  # the tree's growth is its path search
         if best is None:
             return PlanResult("no_feasible", stages=stages, times=times)
+        best.factors["un_near"] = self.evaluator.near_range_unknown(request.omap, best.q_goal)
         best.stages, best.times = stages, times
         return best

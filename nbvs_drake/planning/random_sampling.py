@@ -116,6 +116,7 @@ class RandomSamplingPlanner:
         stages["top_k"] = min(p.top_k, len(ranked))
         if best is None:
             return PlanResult("no_feasible" if stages["with_path"] else "no_path", stages=stages, times=times)
+        best.factors["un_near"] = self.evaluator.near_range_unknown(omap, best.q_goal)
         best.stages, best.times = stages, times
         return best
 

@@ -64,6 +64,37 @@ class ViewEvaluator:
         X = self.kin.camera_poses(q)
         return self.evaluate_poses(omap, X)
 
+    def near_range_unknown(self, omap: OccupancyMap, q: np.ndarray) -> int:
+        """The distinct unknown voxels that the rays of the view at state q (8,) cross within
+        the sensor's minimum range, before any occupied voxel: the evaluator does not count
+        them (view_metrics' sensor model), but a ray that returns clears them. Sampled every
+        quarter voxel along the coarse pass's rays (the evaluator's own without one, dense
+        enough for voxels this near the camera); a ray whose minimum range ends in an occupied voxel is
+        blind and clears nothing. What a plan predicts it will reveal adds them
+        (`perception.evaluation.plan_prediction`); a voxel that other rays also cross beyond
+        the minimum range counts in both."""
+        from ..mapping.voxel import OCCUPIED, UNKNOWN
+        dirs, t_near = (self.coarse[0], self.coarse[1]) if self.coarse is not None else (self.dirs, self.t_near)
+        t_near = np.asarray(t_near, float)
+        if len(t_near) == 0 or t_near.max() <= 0.0:
+            return 0
+        X = self.kin.camera_poses(np.asarray(q, float)[None])[0]
+        spec = omap.spec
+        cls_grid = omap.classes()
+        step = spec.res / 4.0
+        t = np.arange(step / 2, t_near.max(), step)  # (S,)
+        d = dirs @ X[:3, :3].T  # (R, 3) in the world
+        seen = []
+        for a in range(0, len(d), 1000):  # rays in chunks: (1000, S, 3) points at a time
+            p = X[:3, 3] + t[None, :, None] * d[a:a + 1000, None, :]
+            idx = np.floor((p - spec.bmin) / spec.res).astype(np.int64)
+            inside = np.all((idx >= 0) & (idx < np.array(spec.dims)), axis=-1) & (t[None] < t_near[a:a + 1000, None])
+            cls = np.full(inside.shape, -1, np.int64)
+            cls[inside] = cls_grid[idx[inside][:, 0], idx[inside][:, 1], idx[inside][:, 2]]
+            take = (cls == UNKNOWN) & ~(cls == OCCUPIED).any(axis=1)[:, None]
+            seen.append(np.ravel_multi_index(idx[take].T, spec.dims))
+        return int(len(np.unique(np.concatenate(seen))))
+
     def evaluate_coarse(self, omap: OccupancyMap, q: np.ndarray) -> np.ndarray:
         """Metrics (N, K.N_METRICS) of the states q (N, 8) from the coarse pass's rays
         (planner.evaluator.coarse_stride), the per-ray columns on the scale of this evaluator's

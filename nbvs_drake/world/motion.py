@@ -86,7 +86,7 @@ def path_length(states: np.ndarray, weights) -> float:
     """rho = sum_i sqrt(sum_j w_j (x_i(a_j) - x_{i-1}(a_j))^2), eq. 8 (base angle wrapped)."""
     s = np.asarray(states, float)
     d = s[1:] - s[:-1]
-    d[:, 2] = (d[:, 2] + np.pi) % (2 * np.pi) - np.pi  # wrap_angle
+    d[:, 2] = wrap_angle(d[:, 2])
     return float(np.sqrt((np.asarray(weights, float) * d * d).sum(axis=1)).sum())
 
 

@@ -16,6 +16,9 @@ ARM_JOINTS = ["katana_j1", "katana_j2", "katana_j3", "katana_j4", "katana_j5"]
 BASE_JOINT = "base"
 CAMERA_BODY = "camera_optical"
 
+#: how far (rad) an arm joint may stand outside its limits and still count as within them
+LIMIT_TOL = 1e-9
+
 
 def urdf_path(name: str) -> Path:
     p = model_path(name)
@@ -74,8 +77,9 @@ class RobotKinematics:
         link5 = plant.GetBodyByName("katana_link5")
         self.X_L5C = _X(plant.CalcRelativeTransform(ctx, link5.body_frame(), cam.body_frame()))
         self._ctx = ctx
-        self._first_vertical: bool | None = None
-        self._limits = None  # the arm's limits with all_within_limits' tolerance
+        self._first_vertical = self._first_joint_is_vertical()
+        #: the arm's limits widened by LIMIT_TOL (all_within_limits)
+        self._limits = (self.arm_lower - LIMIT_TOL, self.arm_upper + LIMIT_TOL)
 
     # ---- layout --------------------------------------------------------------------
     def to_positions(self, q: np.ndarray) -> np.ndarray:
@@ -93,8 +97,6 @@ class RobotKinematics:
         """Whether the arm's first joint turns about the base's vertical axis, with no rotation
         between the base and it (`turned_about_mount` and the director-ray test's arm-plane
         pretest rely on it). Read off the URDF once."""
-        if self._first_vertical is None:
-            self._first_vertical = self._first_joint_is_vertical()
         return self._first_vertical
 
     def _first_joint_is_vertical(self) -> bool:
@@ -132,12 +134,10 @@ class RobotKinematics:
     def all_within_limits(self, q: np.ndarray) -> bool:
         """Whether every state of q (..., 8) has its arm within the limits
         (`arm_within_limits` of them all)."""
-        if self._limits is None:
-            self._limits = (self.arm_lower - 1e-9, self.arm_upper + 1e-9)
         a = np.asarray(q, float)[..., 3:]
         return bool(((a >= self._limits[0]) & (a <= self._limits[1])).all())
 
-    def arm_within_limits(self, q: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    def arm_within_limits(self, q: np.ndarray, tol: float = LIMIT_TOL) -> np.ndarray:
         q = np.asarray(q, float)
         return np.all((q[..., 3:] >= self.arm_lower - tol) & (q[..., 3:] <= self.arm_upper + tol), axis=-1)
 

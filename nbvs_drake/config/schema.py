@@ -23,7 +23,8 @@ REGISTERED_SIGMA = (0.01, 0.01, 0.01)
 OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up="y"),
                 "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z"),
                 "chair": dict(size=0.90, up="z"), "suitcase": dict(size=0.90, up="z"),
-                "humanoid": dict(size=0.58, up="z")}
+                "humanoid": dict(size=0.58, up="z"), "cup": dict(size=0.24, up="z"),
+                "crate": dict(size=0.30, up="z"), "stool": dict(size=0.40, up="z")}
 #: what the object stands on
 SUPPORTS = ("table", "box", "floor")
 #: the known obstacles beside the table or support
@@ -112,12 +113,13 @@ class ObjectConfig:
     (lowest point on the table top, the box's top or the floor; footprint centred at `xy`)."""
     #: teapot (Newell's patches), bunny (models/stanford_bunny.ply), dragon
     #: (models/stanford_dragon.ply), mesh (the file `mesh`), or one built from primitives
-    #: (world/shapes.py): chair (an office chair), suitcase, humanoid (NAO's size)
+    #: (world/shapes.py): chair (an office chair), suitcase, humanoid (NAO's size), and the
+    #: test objects cup (a hollow vessel), crate (an open box) and stool (thin legs and rungs)
     kind: str = "teapot"
     mesh: Optional[str] = None  #: OBJ/PLY/STL/OFF/glTF/GLB path (relative to the scenario file) for kind mesh
     #: the longest side in metres of the mesh's own bounding box; None: the kind's (teapot 0.40,
     #: bunny 0.467 and dragon 0.511 = the papers' objects, mesh 0.40, chair 0.90, suitcase 0.90,
-    #: humanoid 0.58). A kind changed by a
+    #: humanoid 0.58, cup 0.24, crate 0.30, stool 0.40). A kind changed by a
     #: setting without a size takes the new kind's default
     size: Optional[float] = None
     scale: Optional[float] = None  #: mesh units -> metres instead of a size (size must then be None)
@@ -412,8 +414,10 @@ class VerifiedViews:
     #: with refine_scan: the scan after a correction path is registered anew from the frame's
     #: prior (the frame's correction undone), independently of the frame, and it is the sensing
     #: scan only where the two registrations agree within confirm_m and confirm_rad; else it is
-    #: a re-localisation frame (the belief at the scan's own registration, the frame's spread
-    #: kept; after max_recoveries frames it is taken and not integrated). Localisation frames
+    #: a localisation frame: registered, the belief moves to the scan's own registration, which
+    #: the scan after the next correction must confirm; not registered, a re-localisation frame
+    #: with the frame's spread (after max_recoveries frames the scan is taken and not
+    #: integrated). Localisation frames
     #: then never enter the registration model: a frame registered from a wide prior can stop
     #: in a wrong minimum that fits, and the scan registered against it agrees with it
     confirm_scan: bool = False

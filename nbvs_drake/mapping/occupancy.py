@@ -7,6 +7,7 @@ in abstract state and copy contexts freely (copies share the arrays).
 from __future__ import annotations
 
 import dataclasses as dc
+import functools
 import math
 
 import numpy as np
@@ -79,11 +80,21 @@ def grid_for(scene, m) -> GridSpec:
     return GridSpec(i_lo * res, res, tuple(int(x) for x in (i_hi - i_lo)))
 
 
+@functools.lru_cache(maxsize=8)
+def _in_box(bmin: tuple, res: float, dims: tuple, lo: tuple, hi: tuple) -> np.ndarray:
+    """`OccupancyMap.in_wbox` of a grid and a box (each axis apart: the same centres)."""
+    ax = [np.asarray(bmin[a] + (np.arange(dims[a]) + 0.5) * res) for a in range(3)]
+    m = [(x >= lo[a]) & (x <= hi[a]) for a, x in enumerate(ax)]
+    out = m[0][:, None, None] & m[1][None, :, None] & m[2][None, None, :]
+    out.flags.writeable = False
+    return out
+
+
 class OccupancyMap:
     """Immutable occupancy map snapshot: log-odds grid, accumulated object points, counters."""
 
     __slots__ = ("spec", "model", "logodds", "object_points", "object_normals", "scan_count", "wbox_min",
-                 "wbox_max")
+                 "wbox_max", "_classes")
 
     def __init__(self, spec: GridSpec, model: SensorModel, logodds: np.ndarray | None = None,
                  object_points: np.ndarray | None = None, scan_count: int = 0,
@@ -109,6 +120,7 @@ class OccupancyMap:
         self.scan_count = scan_count
         self.wbox_min = spec.bmin if wbox_min is None else np.asarray(wbox_min, float)
         self.wbox_max = spec.bmax if wbox_max is None else np.asarray(wbox_max, float)
+        self._classes = None
 
     # immutable: copies share the arrays (Drake clones abstract state on every update)
     def __copy__(self):
@@ -129,8 +141,12 @@ class OccupancyMap:
 
     # ---- classes -------------------------------------------------------------------
     def classes(self) -> np.ndarray:
-        """int8 class of every voxel (voxel.FREE, UNKNOWN, OCCUPIED)."""
-        return classes_grid(np.ascontiguousarray(self.logodds), self.model.l_free, self.model.l_occ)
+        """int8 class of every voxel (voxel.FREE, UNKNOWN, OCCUPIED); computed once per map (its
+        log-odds never change) and shared: callers must not change it (it stays writeable, so
+        the numba kernels that take it keep their compiled signatures)."""
+        if self._classes is None:
+            self._classes = classes_grid(np.ascontiguousarray(self.logodds), self.model.l_free, self.model.l_occ)
+        return self._classes
 
     def counts(self) -> dict:
         c = self.classes()
@@ -180,9 +196,10 @@ class OccupancyMap:
         return int(np.count_nonzero(np.isin(labels, reached[reached > 0])))
 
     def in_wbox(self) -> np.ndarray:
-        """Voxels whose centre lies in W_box (the map also covers a margin around it)."""
-        cen = self.spec.centers()
-        return np.all((cen >= self.wbox_min) & (cen <= self.wbox_max), axis=-1)
+        """Voxels whose centre lies in W_box (the map also covers a margin around it); read-only,
+        one array per grid and box."""
+        lo, hi = (tuple(np.asarray(b, float).tolist()) for b in (self.wbox_min, self.wbox_max))
+        return _in_box(tuple(self.spec.bmin.tolist()), self.spec.res, self.spec.dims, lo, hi)
 
     def probabilities(self) -> np.ndarray:
         return 1.0 / (1.0 + np.exp(-self.logodds.astype(np.float64)))

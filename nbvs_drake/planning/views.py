@@ -436,7 +436,16 @@ def near_surface(omap: OccupancyMap, reach: float = NEAR_SURFACE_VOXELS) -> tupl
     occ = c == OCCUPIED
     if not occ.any():
         return np.zeros(c.shape, bool), 0.0
-    close = ndimage.distance_transform_edt(~occ) <= reach
+    # the distance transform on the occupied voxels' bounding box grown by the reach (all a
+    # voxel within reach can be): the same grid, a fraction of the voxels on a fine map
+    pad = int(np.ceil(reach)) + 1
+    nz = np.nonzero(occ)
+    box = tuple(slice(max(int(i.min()) - pad, 0), min(int(i.max()) + pad + 1, n)) for i, n in zip(nz, occ.shape))
+    close = np.zeros(c.shape, bool)
+    sub = ~occ[box]
+    # voxels outside the box lie farther than `reach` from every occupied voxel; inside it the
+    # nearest occupied voxel of a voxel within reach is inside it too
+    close[box] = ndimage.distance_transform_edt(sub) <= reach
     near = close & (c == UNKNOWN)
     sel = c[close & omap.in_wbox()]
     n_occ, n_free = int(np.count_nonzero(sel == OCCUPIED)), int(np.count_nonzero(sel == FREE))

@@ -65,5 +65,64 @@ def humanoid() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return join(parts)
 
 
+def _ring_wall(radius: float, z0: float, z1: float, thickness: float, staves: int) -> list:
+    """A thin round wall of `staves` flat boxes (each convex), tangent to the circle of
+    `radius` (its outside), `thickness` thick, from z0 to z1."""
+    w = 2 * radius * math.tan(math.pi / staves) * 1.02  # the staves' outsides meet
+    parts = []
+    for k in range(staves):
+        a = 2 * math.pi * k / staves
+        parts.append(box((radius - thickness, -w / 2, z0), (radius, w / 2, z1), yaw=a))
+    return parts
+
+
+def cup() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A hollow vessel open at the top (issue 50's hollow test object): 0.20 m across, 0.24 m
+    tall, a wall of 24 staves 8 mm thick (under half a 2 cm voxel) on a 12 mm bottom; its
+    inside, 0.23 m deep, is seen only through its mouth."""
+    return join([cylinder((0.0, 0.0), 0.0, 0.012, 0.1, sides=24)] + _ring_wall(0.1, 0.012, 0.24, 0.008, 24))
+
+
+def crate() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An open box (a hollow with a square mouth): 0.30 x 0.22 x 0.18 m, walls 10 mm thick on a
+    10 mm floor, one short side lower (0.12 m) so that its inside is seen from one side as well
+    as from above."""
+    t = 0.01
+    return join([box((-0.15, -0.11, 0.0), (0.15, 0.11, t)),  # floor
+                 box((-0.15, -0.11, t), (0.15, -0.11 + t, 0.18)), box((-0.15, 0.11 - t, t), (0.15, 0.11, 0.18)),
+                 box((-0.15, -0.11 + t, t), (-0.15 + t, 0.11 - t, 0.18)),
+                 box((0.15 - t, -0.11 + t, t), (0.15, 0.11 - t, 0.12))])
+
+
+def stool() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A bar stool of thin parts (issue 50's thin test object): a round seat 0.30 m across and
+    25 mm thick on three splayed legs 14 mm thick, with a ring of three rungs 10 mm thick, 0.40 m
+    tall; legs and rungs are thinner than a 2 cm voxel."""
+    parts = [cylinder((0.0, 0.0), 0.375, 0.40, 0.15, sides=24)]
+    feet, tops = [], []
+    for k in range(3):
+        a = 2 * math.pi * k / 3
+        feet.append((0.16 * math.cos(a), 0.16 * math.sin(a)))
+        tops.append((0.10 * math.cos(a), 0.10 * math.sin(a)))
+    for (fx, fy), (tx, ty) in zip(feet, tops):  # each leg a chain of short vertical boxes
+        n = 10
+        for i in range(n):
+            f0, f1 = i / n, (i + 1) / n
+            x, y = fx + (tx - fx) * (f0 + f1) / 2, fy + (ty - fy) * (f0 + f1) / 2
+            parts.append(box((x - 0.007, y - 0.007, 0.375 * f0), (x + 0.007, y + 0.007, 0.375 * f1)))
+    for k in range(3):  # rungs between the legs at 0.15 m, as boxes along each side
+        (ax, ay), (bx, by) = feet[k], feet[(k + 1) % 3]
+        f = 0.15 / 0.375
+        ax, ay = ax + (tops[k][0] - ax) * f, ay + (tops[k][1] - ay) * f
+        bx, by = bx + (tops[(k + 1) % 3][0] - bx) * f, by + (tops[(k + 1) % 3][1] - by) * f
+        L = math.hypot(bx - ax, by - ay)
+        parts.append(box((-L / 2, -0.005, 0.145), (L / 2, 0.005, 0.155), yaw=math.atan2(by - ay, bx - ax),
+                         about=(0.0, 0.0)))
+        V, T = parts[-1]
+        parts[-1] = (V + np.array([(ax + bx) / 2, (ay + by) / 2, 0.0]), T)
+    return join(parts)
+
+
 #: kind -> builder
-SHAPES = {"chair": office_chair, "suitcase": suitcase, "humanoid": humanoid}
+SHAPES = {"chair": office_chair, "suitcase": suitcase, "humanoid": humanoid, "cup": cup, "crate": crate,
+          "stool": stool}

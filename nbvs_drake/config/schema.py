@@ -24,7 +24,7 @@ OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up=
                 "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z"),
                 "chair": dict(size=0.90, up="z"), "suitcase": dict(size=0.90, up="z"),
                 "humanoid": dict(size=0.58, up="z"), "cup": dict(size=0.24, up="z"),
-                "crate": dict(size=0.30, up="z"), "stool": dict(size=0.40, up="z")}
+                "crate": dict(size=0.30, up="z"), "stool": dict(size=0.40, up="z"), "lamp": dict(size=0.36, up="z")}
 #: what the object stands on
 SUPPORTS = ("table", "box", "floor")
 #: the known obstacles beside the table or support
@@ -114,12 +114,13 @@ class ObjectConfig:
     #: teapot (Newell's patches), bunny (models/stanford_bunny.ply), dragon
     #: (models/stanford_dragon.ply), mesh (the file `mesh`), or one built from primitives
     #: (world/shapes.py): chair (an office chair), suitcase, humanoid (NAO's size), and the
-    #: test objects cup (a hollow vessel), crate (an open box) and stool (thin legs and rungs)
+    #: test objects cup (a hollow vessel), crate (an open box), stool (thin legs and rungs) and
+    #: lamp (a thin arm and an open shade)
     kind: str = "teapot"
     mesh: Optional[str] = None  #: OBJ/PLY/STL/OFF/glTF/GLB path (relative to the scenario file) for kind mesh
     #: the longest side in metres of the mesh's own bounding box; None: the kind's (teapot 0.40,
     #: bunny 0.467 and dragon 0.511 = the papers' objects, mesh 0.40, chair 0.90, suitcase 0.90,
-    #: humanoid 0.58, cup 0.24, crate 0.30, stool 0.40). A kind changed by a
+    #: humanoid 0.58, cup 0.24, crate 0.30, stool 0.40, lamp 0.36). A kind changed by a
     #: setting without a size takes the new kind's default
     size: Optional[float] = None
     scale: Optional[float] = None  #: mesh units -> metres instead of a size (size must then be None)
@@ -416,8 +417,9 @@ class VerifiedViews:
     #: scan only where the two registrations agree within confirm_m and confirm_rad; else it is
     #: a localisation frame: registered, the belief moves to the scan's own registration, which
     #: the scan after the next correction must confirm; not registered, a re-localisation frame
-    #: with the frame's spread (after max_recoveries frames the scan is taken and not
-    #: integrated). Localisation frames
+    #: with the frame's spread; such frames do not count against max_recoveries but have a
+    #: budget of their own as large (after it the scan is taken and not integrated).
+    #: Localisation frames
     #: then never enter the registration model: a frame registered from a wide prior can stop
     #: in a wrong minimum that fits, and the scan registered against it agrees with it
     confirm_scan: bool = False

@@ -30,6 +30,17 @@ def _serialize(classes: np.ndarray, off: np.ndarray):
     free_c, occ_c = int(FREE), int(OCCUPIED)
     bits_of = {"free": _FREE_BITS, "occ": _OCC_BITS, "inner": _INNER_BITS}
     n_nodes = [0]
+    # summed-area tables of the free and occupied voxels: a node's counts in 8 lookups, so that
+    # a node all unknown, all free or all occupied (a pruned leaf) ends without its children
+    sat = []
+    for c in (free_c, occ_c):
+        t = np.zeros(tuple(d + 1 for d in dims), np.int64)
+        t[1:, 1:, 1:] = (classes == c).cumsum(0).cumsum(1).cumsum(2)
+        sat.append(t.tolist())
+
+    def count(t, x0, y0, z0, x1, y1, z1):
+        return (t[x1][y1][z1] - t[x0][y1][z1] - t[x1][y0][z1] - t[x1][y1][z0]
+                + t[x0][y0][z1] + t[x0][y1][z0] + t[x1][y0][z0] - t[x0][y0][z0])
 
     def node(depth, bx, by, bz):
         """Returns ('unknown' | 'free' | 'occ' | 'inner', payload bytes)."""
@@ -40,6 +51,18 @@ def _serialize(classes: np.ndarray, off: np.ndarray):
         if size == 1:
             c = cls[bx - lo[0]][by - lo[1]][bz - lo[2]]
             return ("free" if c == free_c else "occ" if c == occ_c else "unknown"), b""
+        # the node's part of the grid: no known voxel -> unknown; a node wholly inside the grid
+        # all of one known class -> that leaf (what the recursion's pruning would return)
+        x0, y0, z0 = max(bx - lo[0], 0), max(by - lo[1], 0), max(bz - lo[2], 0)
+        x1, y1, z1 = min(bx + size, hi[0]) - lo[0], min(by + size, hi[1]) - lo[1], min(bz + size, hi[2]) - lo[2]
+        nf = count(sat[0], x0, y0, z0, x1, y1, z1)
+        no = count(sat[1], x0, y0, z0, x1, y1, z1)
+        if nf == 0 and no == 0:
+            return "unknown", b""
+        inside = bx >= lo[0] and by >= lo[1] and bz >= lo[2] and bx + size <= hi[0] and by + size <= hi[1] \
+            and bz + size <= hi[2]
+        if inside and (nf == size ** 3 or no == size ** 3):
+            return ("free" if nf else "occ"), b""
         half = size >> 1
         kids = [node(depth + 1, bx + half * (pos & 1), by + half * ((pos >> 1) & 1), bz + half * ((pos >> 2) & 1))
                 for pos in range(8)]

@@ -68,14 +68,16 @@ class _Outcome:
 def _recoveries(frames, per_leg: bool) -> int:
     """The localisation frames mission.max_recoveries bounds: those not at a leg's end since
     the scan, or (per_leg: mission.leg_turns, whose plans have twice the legs) since the last
-    leg's frame, so each leg has its own budget."""
+    leg's frame, so each leg has its own budget. Scans that their registration did not
+    confirm (verified_views.confirm_scan) are not counted: they have a budget of their own."""
     n = 0
     for f in reversed(frames):
         if f.get("purpose") == "leg":
             if per_leg:
                 break
             continue
-        n += 1
+        if "confirm" not in f:  # (scans their registration did not confirm: their own budget)
+            n += 1
     return n
 
 
@@ -226,7 +228,8 @@ class Localisation(LeafSystem):
                         fix = own_fix
                     else:
                         pending = mem.fix[0]
-                    if n_rec < self.config.verified_views.max_recoveries:
+                    n_unconfirmed = sum("confirm" in f for f in mem.frames)
+                    if n_unconfirmed < self.config.verified_views.max_recoveries:
                         check = "correct" if icp.applied else "relocalise"
                     else:
                         integrate = False

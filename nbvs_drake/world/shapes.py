@@ -123,6 +123,22 @@ def stool() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return join(parts)
 
 
+def lamp() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A desk lamp (a test object held out of development, issue 50): a round base 0.16 m
+    across, a slanted arm 12 mm thick, and a round shade open at both ends (0.14 m across,
+    6 mm walls) hanging over the base; 0.36 m tall."""
+    parts = [cylinder((0.0, 0.0), 0.0, 0.02, 0.08, sides=20)]
+    a0, a1 = np.array([-0.04, 0.0, 0.02]), np.array([0.02, 0.0, 0.33])  # the arm, in short boxes
+    n = 12
+    for i in range(n):
+        p0, p1 = a0 + (a1 - a0) * i / n, a0 + (a1 - a0) * (i + 1) / n
+        c = 0.5 * (p0 + p1)
+        parts.append(box((c[0] - 0.006, -0.006, p0[2]), (c[0] + 0.006, 0.006, p1[2])))
+    parts.append(box((0.0, -0.006, 0.33), (0.07, 0.006, 0.342)))  # the arm's top, out to the shade
+    parts += [(V + np.array([0.07, 0.0, 0.0]), T) for V, T in _ring_wall(0.07, 0.24, 0.36, 0.006, 20)]
+    return join(parts)
+
+
 #: kind -> builder
 SHAPES = {"chair": office_chair, "suitcase": suitcase, "humanoid": humanoid, "cup": cup, "crate": crate,
-          "stool": stool}
+          "stool": stool, "lamp": lamp}

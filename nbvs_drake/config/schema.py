@@ -415,16 +415,16 @@ class VerifiedViews:
     #: with refine_scan: the scan after a correction path is registered anew from the frame's
     #: prior (the frame's correction undone), independently of the frame, and it is the sensing
     #: scan only where the two registrations agree within confirm_m and confirm_rad; else it is
-    #: a localisation frame: registered, the belief moves to the scan's own registration, which
-    #: the scan after the next correction must confirm; not registered, a re-localisation frame
-    #: with the frame's spread; such frames do not count against max_recoveries but have a
-    #: budget of their own as large (after it the scan is taken and not integrated).
-    #: Localisation frames
-    #: then never enter the registration model: a frame registered from a wide prior can stop
-    #: in a wrong minimum that fits, and the scan registered against it agrees with it
+    #: a re-localisation frame, the belief kept at the frame's pose with the frame's spread;
+    #: such frames do not count against max_recoveries but have a budget of their own as large
+    #: (after it the scan is taken and not integrated). Localisation frames then never enter
+    #: the registration model: a frame registered from a wide prior can stop in a wrong minimum
+    #: that fits, and the scan registered against it agrees with it
     confirm_scan: bool = False
-    confirm_m: float = 0.015  #: m between the frame's and the scan's registered base positions
-    confirm_rad: float = 0.02  #: rad between their headings
+    #: m between the frame's and the scan's registered base positions (as tolerance_m: 1.5 cm
+    #: turned down the dragon's ordinary disagreements of 1.5-2 cm)
+    confirm_m: float = 0.03
+    confirm_rad: float = 0.05  #: rad between their headings
     landmarks: Landmarks = dc.field(default_factory=Landmarks)  #: which registration landmarks count as in view
     #: the spread (m, m, rad standard deviations in x, y, heading) of a registered belief that
     #: the rollouts of each leg and of the recovery paths start from: the registration's own

@@ -202,7 +202,7 @@ class Localisation(LeafSystem):
                 omap: OccupancyMap = self._map.Eval(context)
                 free_at = functools.partial(omap.free_hits, table_clearance=self.mapper.table_clearance)
                 if confirm:
-                    icp, confirmed, own_fix = self._confirm(reg_pts, X_WC, mem, prior, free_at)
+                    icp, confirmed = self._confirm(reg_pts, X_WC, mem, prior, free_at)
                 else:
                     icp = register_scan(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], mem.model, prior,
                                         self.reg_cfg, free_at=free_at,
@@ -220,17 +220,13 @@ class Localisation(LeafSystem):
                     fix = (prior, corr) if icp.applied else None
                 n_rec = _recoveries(mem.frames, self._leg_turns)
                 if confirmed is not None and not confirmed["agrees"]:
-                    # not confirmed: a localisation frame, the scan's own registration the one
-                    # the next scan must confirm (a correction to the view from there), or,
-                    # not registered, a re-localisation frame with the frame's spread; with no
-                    # recoveries left, the scan, not integrated
-                    if icp.applied:
-                        fix = own_fix
-                    else:
-                        pending = mem.fix[0]
+                    # not confirmed: neither registration is trusted; the belief stays at the
+                    # frame's pose with the frame's spread, and a re-localisation frame follows
+                    # (with no such recoveries left, the scan, not integrated)
+                    corr, pending = Correction(), mem.fix[0]
                     n_unconfirmed = sum("confirm" in f for f in mem.frames)
                     if n_unconfirmed < self.config.verified_views.max_recoveries:
-                        check = "correct" if icp.applied else "relocalise"
+                        check = "relocalise"
                     else:
                         integrate = False
                 else:
@@ -264,24 +260,21 @@ class Localisation(LeafSystem):
         """verified_views.confirm_scan: the scan registered from the last frame's prior, that
         frame's correction undone (so neither its pose nor its points, which stay out of the
         model, decide), and whether the two registrations agree. Returns the registration
-        (its correction relative to the believed pose, the frame's), the agreement report, and
-        the scan's own registration as a frame to confirm (prior, correction from the same
-        start as the frame's)."""
+        (its correction relative to the believed pose, the frame's) and the agreement report."""
         f_prior, f_corr = mem.fix
         undo = f_corr.inverse()
         P = undo.apply_points(reg_pts)
-        own_prior = prior + f_prior
-        icp = register_scan(P[region_mask(self.scene, P, self.reg_cfg)], mem.model, own_prior, self.reg_cfg,
+        icp = register_scan(P[region_mask(self.scene, P, self.reg_cfg)], mem.model, prior + f_prior, self.reg_cfg,
                             free_at=free_at, view=ScanView(undo.apply_points(X_WC[:3, 3][None])[0], P, self._solids))
         vv = self.config.verified_views
         if not icp.applied:
-            return icp, dict(agrees=False, offset_m=None, offset_rad=None), None
+            return icp, dict(agrees=False, offset_m=None, offset_rad=None)
         corr = icp.correction.after(undo)  # from the believed (frame-corrected) pose
         q = mem.belief.state
         d_m, d_rad = state_error(q, corr.apply_state(q))
         agrees = d_m <= vv.confirm_m and d_rad <= vv.confirm_rad
-        return (dc.replace(icp, correction=corr), dict(agrees=bool(agrees), offset_m=round(d_m, 5),
-                                                       offset_rad=round(d_rad, 5)), (own_prior, icp.correction))
+        return dc.replace(icp, correction=corr), dict(agrees=bool(agrees), offset_m=round(d_m, 5),
+                                                      offset_rad=round(d_rad, 5))
 
     def _refines(self, tau: ControlSequence, mem) -> bool:
         """mission.refine_scan_registration: this scan ends a correction path of verified views."""

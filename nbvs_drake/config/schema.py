@@ -412,19 +412,6 @@ class VerifiedViews:
     #: REGISTERED_SIGMA) and integrated there: a frame registered from a large error can
     #: stop in a wrong minimum that fits
     refine_scan: bool = False
-    #: with refine_scan: the scan after a correction path is registered anew from the frame's
-    #: prior (the frame's correction undone), independently of the frame, and it is the sensing
-    #: scan only where the two registrations agree within confirm_m and confirm_rad; else it is
-    #: a re-localisation frame, the belief kept at the frame's pose with the frame's spread;
-    #: such frames do not count against max_recoveries but have a budget of their own as large
-    #: (after it the scan is taken and not integrated). Localisation frames then never enter
-    #: the registration model: a frame registered from a wide prior can stop in a wrong minimum
-    #: that fits, and the scan registered against it agrees with it
-    confirm_scan: bool = False
-    #: m between the frame's and the scan's registered base positions (as tolerance_m: 1.5 cm
-    #: turned down the dragon's ordinary disagreements of 1.5-2 cm)
-    confirm_m: float = 0.03
-    confirm_rad: float = 0.05  #: rad between their headings
     landmarks: Landmarks = dc.field(default_factory=Landmarks)  #: which registration landmarks count as in view
     #: the spread (m, m, rad standard deviations in x, y, heading) of a registered belief that
     #: the rollouts of each leg and of the recovery paths start from: the registration's own
@@ -437,9 +424,6 @@ class VerifiedViews:
                 f"{at}.tolerance_m and tolerance_rad must be > 0, got {self.tolerance_m}, {self.tolerance_rad}")
         require(self.max_recoveries >= 0, f"{at}.max_recoveries must be >= 0, got {self.max_recoveries}")
         require(self.recovery_rollouts >= 0, f"{at}.recovery_rollouts must be >= 0, got {self.recovery_rollouts}")
-        require(finite(self.confirm_m, self.confirm_rad) and self.confirm_m > 0 and self.confirm_rad > 0,
-                f"{at}.confirm_m and confirm_rad must be > 0, got {self.confirm_m}, {self.confirm_rad}")
-        require(self.refine_scan or not self.confirm_scan, f"{at}.confirm_scan needs refine_scan: true")
         if self.legs is not None:
             self.legs.check(f"{at}.legs")
         require(len(self.registered_sigma) == 3 and all(finite(v) and v >= 0 for v in self.registered_sigma),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses as dc
 import functools
 import time
 
@@ -25,7 +24,7 @@ from ..perception.registration import (
 )
 from ..stage_clock import REGISTRATION, VERIFICATION, stage
 from ..world.motion import REGISTERED_SIGMA, ControlSequence
-from ..world.pose import EXACT_POSE_VAR, Correction, state_error
+from ..world.pose import EXACT_POSE_VAR, Correction
 from ..world.robot import RobotKinematics
 from ..world.sensor import binned_cloud, clean_scan, no_return_rays, ray_directions
 from ..world.state import NQ
@@ -38,7 +37,7 @@ class _Memory:
     last scan."""
 
     def __init__(self, belief: Belief, predicted_plan: int, scanned_plan: int, model: RegistrationModel,
-                 last_scan: RegisteredScan, frames: tuple = (), fix=None):
+                 last_scan: RegisteredScan, frames: tuple = ()):
         self.belief = belief
         self.predicted_plan = predicted_plan
         self.scanned_plan = scanned_plan
@@ -46,9 +45,6 @@ class _Memory:
         self.last_scan = last_scan
         #: the localisation frames since the last sensing scan (their reports)
         self.frames = frames
-        #: the last registered frame's (prior covariance, correction) since the sensing scan:
-        #: what verified_views.confirm_scan registers the next scan from, independently
-        self.fix = fix
 
     def __deepcopy__(self, memo):
         return self
@@ -68,16 +64,14 @@ class _Outcome:
 def _recoveries(frames, per_leg: bool) -> int:
     """The localisation frames mission.max_recoveries bounds: those not at a leg's end since
     the scan, or (per_leg: mission.leg_turns, whose plans have twice the legs) since the last
-    leg's frame, so each leg has its own budget. Scans that their registration did not
-    confirm (verified_views.confirm_scan) are not counted: they have a budget of their own."""
+    leg's frame, so each leg has its own budget."""
     n = 0
     for f in reversed(frames):
         if f.get("purpose") == "leg":
             if per_leg:
                 break
             continue
-        if "confirm" not in f:  # (scans their registration did not confirm: their own budget)
-            n += 1
+        n += 1
     return n
 
 
@@ -188,25 +182,19 @@ class Localisation(LeafSystem):
         pending = mem.belief.covariance
         tau: ControlSequence = self._tau.Eval(context)
         check = ""
-        fix = mem.fix
-        confirmed = None
         if self.config.method == "icp" and mem.belief.scan > 0:
             prior = pending + motion_prior(tau.states[0], tau.controls, tau.dt, tau.states[-1], self.noise,
                                            np.random.default_rng([self.seed, 13, k] + (
                                                [len(mem.frames)] if mem.frames else [])))
             refine = self._refines(tau, mem)
-            confirm = refine and self.config.verified_views.confirm_scan and mem.fix is not None
             if refine:  # the scan after a correction: registered again from the frame's pose
                 prior = prior + np.diag(np.square(REGISTERED_SIGMA))
             if np.any(np.diag(prior) > EXACT_POSE_VAR):  # else odometry is exact: nothing to correct
                 omap: OccupancyMap = self._map.Eval(context)
-                free_at = functools.partial(omap.free_hits, table_clearance=self.mapper.table_clearance)
-                if confirm:
-                    icp, confirmed = self._confirm(reg_pts, X_WC, mem, prior, free_at)
-                else:
-                    icp = register_scan(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], mem.model, prior,
-                                        self.reg_cfg, free_at=free_at,
-                                        view=ScanView(X_WC[:3, 3], reg_pts, self._solids))
+                icp = register_scan(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], mem.model, prior,
+                                    self.reg_cfg, free_at=functools.partial(omap.free_hits,
+                                                                            table_clearance=self.mapper.table_clearance),
+                                    view=ScanView(X_WC[:3, 3], reg_pts, self._solids))
                 if icp.applied:
                     corr = icp.correction
                     pts, free_rays, X_WC = corr.apply_points(pts), corr.apply_points(free_rays), corr.apply_pose(X_WC)
@@ -216,65 +204,27 @@ class Localisation(LeafSystem):
                     pending = prior
                     integrate = not self.config.skip_unregistered_scans
                 # (a refining registration that fails leaves the scan at the registered frame's pose)
-                if not refine:  # what a scan after this frame is confirmed against
-                    fix = (prior, corr) if icp.applied else None
-                n_rec = _recoveries(mem.frames, self._leg_turns)
-                if confirmed is not None and not confirmed["agrees"]:
-                    # not confirmed: neither registration is trusted; the belief stays at the
-                    # frame's pose with the frame's spread, and a re-localisation frame follows
-                    # (with no such recoveries left, the scan, not integrated)
-                    corr, pending = Correction(), mem.fix[0]
-                    n_unconfirmed = sum("confirm" in f for f in mem.frames)
-                    if n_unconfirmed < self.config.verified_views.max_recoveries:
-                        check = "relocalise"
-                    else:
-                        integrate = False
-                else:
-                    check = self._verify(tau, icp, corr.apply_state(mem.belief.state), n_rec)
+                check = self._verify(tau, icp, corr.apply_state(mem.belief.state),
+                                     _recoveries(mem.frames, self._leg_turns))
         t_register = time.perf_counter() - t1
         model = mem.model
-        merge_frames = self.config.verified_views is None or not self.config.verified_views.confirm_scan
-        if integrate and (not check or (icp.applied and merge_frames)):
+        if integrate and (not check or icp.applied):
             model = model.merged(reg_pts[region_mask(self.scene, reg_pts, self.reg_cfg)], self.reg_cfg, X_WC[:3, 3])
         dead = mem.belief.state
         frame = dict(plan_id=status.plan_id, purpose=tau.purpose, n_controls=int(tau.m), t_sim=context.get_time(),
                      register_s=round(t_register, 4), icp=icp.to_json() if icp is not None else None)
-        if confirmed is not None:
-            frame["confirm"] = confirmed
         if check:  # a localisation frame: the belief moves on, the map and the scan count do not
             frame["check"] = check
             belief = Belief(mem.belief.scan, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, check)
             scan = RegisteredScan(mem.belief.scan, X_WC[:3, 3], pts[:0], free_rays[:0], False, {})
-            return scan, belief, model, mem.frames + (frame,), fix
+            return scan, belief, model, mem.frames + (frame,)
         info = dict(plan_id=status.plan_id, t_sim=context.get_time(), render_s=t_render, register_s=t_register,
                     icp=frame["icp"])
-        if confirmed is not None:
-            info["confirm"] = confirmed
         if self.config.verified_views is not None:
             info["frames"] = list(mem.frames)
         scan = RegisteredScan(k, X_WC[:3, 3], pts, free_rays, integrate, info, X_WC)
         belief = Belief(k, dead, corr.apply_state(dead), pending, mem.belief.frame + 1, "")
-        return scan, belief, model, (), None
-
-    def _confirm(self, reg_pts, X_WC, mem: _Memory, prior, free_at):
-        """verified_views.confirm_scan: the scan registered from the last frame's prior, that
-        frame's correction undone (so neither its pose nor its points, which stay out of the
-        model, decide), and whether the two registrations agree. Returns the registration
-        (its correction relative to the believed pose, the frame's) and the agreement report."""
-        f_prior, f_corr = mem.fix
-        undo = f_corr.inverse()
-        P = undo.apply_points(reg_pts)
-        icp = register_scan(P[region_mask(self.scene, P, self.reg_cfg)], mem.model, prior + f_prior, self.reg_cfg,
-                            free_at=free_at, view=ScanView(undo.apply_points(X_WC[:3, 3][None])[0], P, self._solids))
-        vv = self.config.verified_views
-        if not icp.applied:
-            return icp, dict(agrees=False, offset_m=None, offset_rad=None)
-        corr = icp.correction.after(undo)  # from the believed (frame-corrected) pose
-        q = mem.belief.state
-        d_m, d_rad = state_error(q, corr.apply_state(q))
-        agrees = d_m <= vv.confirm_m and d_rad <= vv.confirm_rad
-        return dc.replace(icp, correction=corr), dict(agrees=bool(agrees), offset_m=round(d_m, 5),
-                                                      offset_rad=round(d_rad, 5))
+        return scan, belief, model, ()
 
     def _refines(self, tau: ControlSequence, mem) -> bool:
         """mission.refine_scan_registration: this scan ends a correction path of verified views."""
@@ -306,11 +256,11 @@ class Localisation(LeafSystem):
             value.set_value(_Outcome(mem.last_scan, None))
             return
         with stage(REGISTRATION, "sensing_scan") as st:
-            scan, belief, model, frames, fix = self._register(context, mem, status)
+            scan, belief, model, frames = self._register(context, mem, status)
             if belief.check:  # a localisation frame
                 st.name, st.part = VERIFICATION, "frame_registration"
         value.set_value(_Outcome(scan, _Memory(belief, mem.predicted_plan, status.plan_id, model,
-                                               scan if not belief.check else mem.last_scan, frames, fix)))
+                                               scan if not belief.check else mem.last_scan, frames)))
 
     def _calc_scan(self, context, output):
         output.set_value(self._outcome.Eval(context).scan)
@@ -325,7 +275,7 @@ class Localisation(LeafSystem):
             # a new plan: the belief is its predicted end state until the next scan corrects it
             b = mem.belief
             new = _Memory(Belief(b.scan, b.dead_reckoned, tau.states[-1], b.covariance, b.frame, ""), tau.plan_id,
-                          mem.scanned_plan, mem.model, mem.last_scan, mem.frames, mem.fix)
+                          mem.scanned_plan, mem.model, mem.last_scan, mem.frames)
         state.get_mutable_abstract_state(self._mem).set_value(new)
 
     def _calc_belief(self, context, output):

@@ -63,17 +63,6 @@ class Correction:
         """The robot state whose base pose is T times the base pose of q (arm unchanged)."""
         return apply_corrections(q, [[self.dx, self.dy, self.dyaw]])[0]
 
-    def inverse(self) -> "Correction":
-        """The correction that undoes this one: p = Rz(-dyaw) (p' - (dx, dy))."""
-        c, s = np.cos(self.dyaw), np.sin(self.dyaw)
-        return Correction(-(c * self.dx + s * self.dy), s * self.dx - c * self.dy, -self.dyaw)
-
-    def after(self, first: "Correction") -> "Correction":
-        """The correction that applies `first`, then this one."""
-        c, s = np.cos(self.dyaw), np.sin(self.dyaw)
-        return Correction(c * first.dx - s * first.dy + self.dx, s * first.dx + c * first.dy + self.dy,
-                          float(wrap_angle(first.dyaw + self.dyaw)))
-
     def to_json(self) -> list[float]:
         return [round(self.dx, 6), round(self.dy, 6), round(self.dyaw, 6)]
 

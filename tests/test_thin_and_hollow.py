@@ -91,3 +91,28 @@ def test_a_cup_gets_views_of_its_inside_within_the_first_scans(tmp_path):
     assert 0.4 < inside.mean() < 0.6
     assert s["coverage_by_scan"][0] < 0.25
     assert covered[inside].mean() > 0.05
+
+
+def test_bench_visibility_compares_the_default_map_with_another_from_the_same_scans(tmp_path):
+    """`nbvs bench visibility`'s map_2cm_against_default (app/bench.py map_agreement): the same
+    views ranked on the default map and on a map of another voxel built from the same scans;
+    against a map of the default's own voxel every measure is exact agreement."""
+    from nbvs_drake.app.bench import map_agreement
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    from nbvs_drake.perception.scanning import ScanRenderer
+    from nbvs_drake.planning.candidates import StateSampler
+    from nbvs_drake.world.robot import RobotKinematics
+    sc = small_scenario(seed=0, scans=1, n_candidates=60, gt_points=2000)
+    kin = RobotKinematics(sc.robot.urdf)
+    r = ScanRenderer(sc, tmp_path, kin)
+    scan = r.scan(np.asarray(sc.robot.start, float))
+    maps = [r.integrate(OccupancyMap.for_scenario(sc), scan)]
+    sampler = StateSampler(sc, kin)
+    sets = [sampler.generate(np.random.default_rng([0, k]))[0][:60] for k in range(2)]
+    same = map_agreement(sc, kin, [scan], maps, sets, sc.mapper.voxel_size, 5)
+    assert same["best_view_agreement_full_res"] == 1.0 and same["top_k_agreement_full_res"] == 1.0
+    assert same["rank_agreement_full_res_min"] == pytest.approx(1.0)
+    other = map_agreement(sc, kin, [scan], maps, sets, 0.02, 5)
+    assert other["other_voxel_m"] == 0.02 and other["default_voxel_m"] == 0.01
+    assert -1.0 <= other["rank_agreement_full_res_min"] <= other["rank_agreement_full_res"] <= 1.0
+    assert other["ms_per_view_default_map"] > 0 and other["ms_per_view_other_map"] > 0

@@ -263,6 +263,7 @@ def from_old(o: OldScenario) -> S.Scenario:
     if os_.preset == "kinect":  # the old Kinect had axial noise only, and a ray per pixel block of stride
         sensor.faults = S.DepthFaults.none()
         sensor.model_binning = 1
+        sensor.coarse_binning = 1
     noise = S.NoiseConfig(sigma_v=o.noise.sigma_v, sigma_w=o.noise.sigma_w, sigma_arm=list(o.noise.sigma_arm),
                           beta=o.noise.beta)
     strategy = {"random_sampling": lambda: S.RandomSampling(),

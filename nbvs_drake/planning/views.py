@@ -38,8 +38,9 @@ class ViewEvaluator:
         self.stride = stride or sc.planner.evaluator.stride * binning
         self.hrt_a = sc.planner.hrt_a() if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
-        #: planner.coarse_stride(): the first pass's rays of evaluate_ranked (None: off)
-        coarse = sc.planner.coarse_stride() * binning
+        #: planner.coarse_stride(): the first pass's rays of evaluate_ranked (None: off), in
+        #: blocks of sensor.coarse_binning pixels
+        coarse = sc.planner.coarse_stride() * resolve_sensor(sc.sensor).coarse_binning
         self.coarse_stride = coarse if coarse > self.stride else 0
         self.refine_views = sc.planner.refine_views()
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None

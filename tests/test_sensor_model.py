@@ -158,3 +158,18 @@ def test_the_view_evaluator_uses_the_sensors_rays(kin):
     np.testing.assert_array_equal(ev.dirs, d)
     np.testing.assert_array_equal(ev.t_near, tn)
     np.testing.assert_array_equal(ev.t_far, tf)
+
+
+def test_the_coarse_pass_counts_its_stride_in_the_sensors_coarse_blocks(kin):
+    """planner.evaluator.coarse_stride 6: the SR4000's coarse rays every 6 pixels, the
+    Kinect's every 12 (sensor.coarse_binning 2; its fine rays every 2 x 3 model pixels)."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.planning.views import ViewEvaluator
+    sr, kinect = load_scenario(), load_scenario(settings=["sensor.preset=kinect"])
+    assert sr.planner.coarse_stride() == kinect.planner.coarse_stride() == 6
+    ev_sr, ev_k = ViewEvaluator(kin, sr), ViewEvaluator(kin, kinect)
+    assert (ev_sr.stride, ev_sr.coarse_stride) == (2, 6)
+    assert (ev_k.stride, ev_k.coarse_stride) == (6, 12)
+    np.testing.assert_array_equal(ev_k.coarse[0], ray_directions(kinect.sensor, 12)[0])
+    custom = load_scenario(settings=["sensor.preset=kinect", "sensor.coarse_binning=3"])
+    assert ViewEvaluator(kin, custom).coarse_stride == 18

@@ -50,7 +50,6 @@ def _agreement(base, new, maps, sets, score_of, k_top: int):
     """(seconds of base, seconds of new, best view the same, Spearman's rho, share of the exact
     top k_top in new's) over the candidate sets, set k on map k mod len(maps): `base` evaluates
     every view (the exact ranking), `new` ranks them as the planner does (evaluate_ranked)."""
-    from scipy.stats import spearmanr
     for m in maps:  # compile / load the caches, and the per-map memos (sample density, near surface)
         base.evaluate(m, sets[0][:2]), new.evaluate_ranked(m, sets[0][:40], score_of(m))
     t_base = t_new = 0.0
@@ -64,10 +63,24 @@ def _agreement(base, new, maps, sets, score_of, k_top: int):
         t = time.perf_counter()
         met, order = new.evaluate_ranked(m, q, score)
         t_new += time.perf_counter() - t
-        agree.append(bool(exact[order[0]] == exact.max()))
-        rho.append(float(spearmanr(exact, score(met))[0]))
-        top.append(len(np.intersect1d(order[:k_top], np.argsort(-exact, kind="stable")[:k_top])) / k_top)
+        for out, v in zip((agree, rho, top), _agreement_of(exact, score(met), order, k_top)):
+            out.append(v)
     return t_base, t_new, agree, rho, top
+
+
+def _agreement_of(exact: np.ndarray, scores: np.ndarray, order: np.ndarray, k_top: int) -> tuple:
+    """(the best view of `order` is the best by `exact`, Spearman's rho of `exact` and `scores`,
+    the share of exact's top k_top among order's first k_top): one candidate set's agreement."""
+    from scipy.stats import spearmanr
+    return (bool(exact[order[0]] == exact.max()), float(spearmanr(exact, scores)[0]),
+            len(np.intersect1d(order[:k_top], np.argsort(-exact, kind="stable")[:k_top])) / k_top)
+
+
+def _agreement_json(agree, rho, top) -> dict:
+    """The agreement measures over the candidate sets, as the benches report them."""
+    return {"best_view_agreement_full_res": float(np.mean(agree)),
+            "rank_agreement_full_res": float(np.mean(rho)), "rank_agreement_full_res_min": float(np.min(rho)),
+            "top_k_agreement_full_res": float(np.mean(top))}
 
 
 #: the 2 cm map: the papers', the noisy presets', and the default's before issue 50, on which
@@ -83,8 +96,6 @@ def map_agreement(sc, kin, scans, maps, sets, voxel: float, k_top: int) -> dict:
     ranking is the best on the default map; Spearman's rho of the two rankings' scores; the
     share of the default map's top k_top in the other's), and each map's milliseconds per view."""
     import copy
-
-    from scipy.stats import spearmanr
 
     from ..planning.views import ViewEvaluator, ranking_score
     sc = copy.deepcopy(sc)
@@ -110,15 +121,10 @@ def map_agreement(sc, kin, scans, maps, sets, voxel: float, k_top: int) -> dict:
         t1 = time.perf_counter()
         b = score_of(ev_other, o)(ev_other.evaluate(o, q))
         t[0], t[1] = t[0] + t1 - t0, t[1] + time.perf_counter() - t1
-        agree.append(bool(a[int(np.argmax(b))] == a.max()))
-        rho.append(float(spearmanr(a, b)[0]))
-        top.append(len(np.intersect1d(np.argsort(-a, kind="stable")[:k_top],
-                                      np.argsort(-b, kind="stable")[:k_top])) / k_top)
+        for out, v in zip((agree, rho, top), _agreement_of(a, b, np.argsort(-b, kind="stable"), k_top)):
+            out.append(v)
     n = sum(len(q) for q in sets)
-    return {"default_voxel_m": sc.mapper.voxel_size, "other_voxel_m": voxel,
-            "best_view_agreement_full_res": float(np.mean(agree)),
-            "rank_agreement_full_res": float(np.mean(rho)), "rank_agreement_full_res_min": float(np.min(rho)),
-            "top_k_agreement_full_res": float(np.mean(top)),
+    return {"default_voxel_m": sc.mapper.voxel_size, "other_voxel_m": voxel, **_agreement_json(agree, rho, top),
             "ms_per_view_default_map": 1e3 * t[0] / n, "ms_per_view_other_map": 1e3 * t[1] / n}
 
 
@@ -151,9 +157,7 @@ def bench_visibility_sensor(sensor: str = "kinect", trials: int = 8, per_trial: 
         "model_binning": rs.model_binning, "pixels_per_ray": new.stride, "coarse_pixels_per_ray": new.coarse_stride,
         "rays_per_view": int(len(new.dirs)), "baseline_rays_per_view": int(len(base.dirs)),
         "views_per_trial": per_trial, "trials": trials,
-        "best_view_agreement_full_res": float(np.mean(agree)),
-        "rank_agreement_full_res": float(np.mean(rho)), "rank_agreement_full_res_min": float(np.min(rho)),
-        "top_k_agreement_full_res": float(np.mean(top)),
+        **_agreement_json(agree, rho, top),
         "ms_per_view": 1e3 * t_new / n, "baseline_ms_per_view_full_res": 1e3 * t_base / n,
         "speedup_full_res": t_base / t_new,
     }
@@ -252,10 +256,7 @@ def bench_visibility(n_views: int = 400, trials: int = 10, per_trial: int = 4000
         "baseline_ns_per_ray": 1e9 * t1_base / rays,
         "speedup_full_res": t_base / t_new,
         "speedup_full_res_1core": t1_base / t1_new,
-        "best_view_agreement_full_res": float(np.mean(agree)),
-        "rank_agreement_full_res": float(np.mean(rho)),
-        "rank_agreement_full_res_min": float(np.min(rho)),
-        "top_k_agreement_full_res": float(np.mean(top)),
+        **_agreement_json(agree, rho, top),
         "views_per_s_hrt_a2": 1.0 / t_hrt,
         "hrt_a2_speedup": t_all / t_hrt,
         "hrt_a2_best_view_agreement": hrt_agree / trials,

@@ -34,13 +34,13 @@ class ViewEvaluator:
         self.sensor = sc.sensor
         #: pixels per ray (side): `stride` as given, else planner.evaluator.stride model pixels
         #: of sensor.model_binning pixels each
-        binning = resolve_sensor(sc.sensor).model_binning
-        self.stride = stride or sc.planner.evaluator.stride * binning
+        rs = resolve_sensor(sc.sensor)
+        self.stride = stride or sc.planner.evaluator.stride * rs.model_binning
         self.hrt_a = sc.planner.hrt_a() if hrt_a is None else hrt_a
         self.dirs, self.t_near, self.t_far = ray_directions(sc.sensor, self.stride)
         #: planner.coarse_stride(): the first pass's rays of evaluate_ranked (None: off), in
         #: blocks of sensor.coarse_binning pixels
-        coarse = sc.planner.coarse_stride() * resolve_sensor(sc.sensor).coarse_binning
+        coarse = sc.planner.coarse_stride() * rs.coarse_binning
         self.coarse_stride = coarse if coarse > self.stride else 0
         self.refine_views = sc.planner.refine_views()
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None

@@ -169,3 +169,22 @@ def test_the_registration_search_is_the_noise_presets_and_an_old_record_keeps_it
     assert registration_config(room.localisation, room.scene).grid_major == KNOWN_WALLS["grid_major"]
     with pytest.raises(ScenarioError, match="localisation.search.coarse_iterations"):
         load_scenario("teapot_eu_mu_nbvs", settings=["localisation.search.coarse_iterations=0"])
+
+
+def test_a_runs_scenario_names_its_sensors_values_and_compares_equal_to_its_preset():
+    """A run's scenario.yaml records the sensor preset's values (with_resolved_sensor), so a
+    later change to the preset leaves a record's scenario as it ran; the experiment runner's
+    lookups (settings_of) see the preset and its values as the same run, and a changed value
+    as another."""
+    from pydrake.common.yaml import yaml_dump_typed
+
+    from nbvs_drake.config import load_scenario, scenario_from_text, settings_of
+    from nbvs_drake.config.load import with_resolved_sensor
+    sc = load_scenario(settings=["sensor.preset=kinect"])
+    text = yaml_dump_typed(with_resolved_sensor(sc))
+    again = scenario_from_text(text)
+    assert again.sensor.coarse_binning == 3 and again.sensor.recheck_binning == 2 and again.sensor.width == 640
+    assert sc.sensor.coarse_binning is None  # the scenario itself keeps the preset's None
+    assert settings_of(again) == settings_of(sc)
+    other = load_scenario(settings=["sensor.preset=kinect", "sensor.recheck_binning=0"])
+    assert settings_of(other) != settings_of(sc)

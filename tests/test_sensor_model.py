@@ -162,14 +162,47 @@ def test_the_view_evaluator_uses_the_sensors_rays(kin):
 
 def test_the_coarse_pass_counts_its_stride_in_the_sensors_coarse_blocks(kin):
     """planner.evaluator.coarse_stride 6: the SR4000's coarse rays every 6 pixels, the
-    Kinect's every 12 (sensor.coarse_binning 2; its fine rays every 2 x 3 model pixels)."""
+    Kinect's every 18 (sensor.coarse_binning 3; its fine rays every 2 x 3 model pixels), its
+    second look every 12 (recheck_binning 2); the SR4000 has none."""
     from nbvs_drake.config import load_scenario
     from nbvs_drake.planning.views import ViewEvaluator
     sr, kinect = load_scenario(), load_scenario(settings=["sensor.preset=kinect"])
     assert sr.planner.coarse_stride() == kinect.planner.coarse_stride() == 6
     ev_sr, ev_k = ViewEvaluator(kin, sr), ViewEvaluator(kin, kinect)
-    assert (ev_sr.stride, ev_sr.coarse_stride) == (2, 6)
-    assert (ev_k.stride, ev_k.coarse_stride) == (6, 12)
-    np.testing.assert_array_equal(ev_k.coarse[0], ray_directions(kinect.sensor, 12)[0])
-    custom = load_scenario(settings=["sensor.preset=kinect", "sensor.coarse_binning=3"])
-    assert ViewEvaluator(kin, custom).coarse_stride == 18
+    assert (ev_sr.stride, ev_sr.coarse_stride, ev_sr.recheck) == (2, 6, None)
+    assert (ev_k.stride, ev_k.coarse_stride, ev_k.recheck_stride) == (6, 18, 12)
+    np.testing.assert_array_equal(ev_k.coarse[0], ray_directions(kinect.sensor, 18)[0])
+    np.testing.assert_array_equal(ev_k.recheck[0], ray_directions(kinect.sensor, 12)[0])
+    custom = load_scenario(settings=["sensor.preset=kinect", "sensor.coarse_binning=2", "sensor.recheck_binning=0"])
+    ev_c = ViewEvaluator(kin, custom)
+    assert (ev_c.coarse_stride, ev_c.recheck) == (12, None)
+
+
+def test_the_second_look_finds_the_views_whose_coarse_rays_missed_the_known_surface(kin, first_scan_map):
+    """The Kinect's coarse pass (one ray per 18 x 18 pixels) misses slivers of known surface
+    between its rays: a view that sees a little of it scores 0 under the registration filter
+    (overlap > 0). The second look (12 x 12) evaluates again the views whose coarse rays came
+    near known surface without landing on it: against every pixel's rays (stride 1), it only
+    adds views that pass the filter, and fewer of those that do stay at 0."""
+    import copy
+
+    from nbvs_drake.planning.candidates import StateSampler
+    from nbvs_drake.planning.views import ViewEvaluator, ranking_score
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.sensor.preset = "kinect"
+    sc.planner.n_candidates = 600
+    q = StateSampler(sc, kin).generate(np.random.default_rng(3))[0]
+    with_look = ViewEvaluator(kin, sc)
+    plain_sc = copy.deepcopy(sc)
+    plain_sc.sensor.recheck_binning = 0
+    plain = ViewEvaluator(kin, plain_sc)
+    assert with_look.recheck is not None and plain.recheck is None
+    score = ranking_score(with_look, omap, sc.planner.metric, sc.planner.overlap_h, max(omap.unknown_count(), 1))
+    full = score(ViewEvaluator(kin, sc, stride=1).evaluate(omap, q)) > 0
+    a = score(with_look.evaluate_ranked(omap, q, score)[0]) > 0
+    b = score(plain.evaluate_ranked(omap, q, score)[0]) > 0
+    assert not (a & ~full).any() and not (b & ~full).any()  # the coarse rays are pixels' rays
+    assert not (b & ~a).any()  # the second look only adds
+    assert (a & ~b).sum() >= 3, (a & ~b).sum()
+    assert (full & ~a).sum() < (full & ~b).sum()

@@ -130,10 +130,12 @@ def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageCl
         from pydrake.systems.framework import EventStatus
 
         out.mkdir(parents=True, exist_ok=True)
-        # the resolved scenario (seed, defaults filled in): `nbvs reconstruct --scenario
-        # OUT/scenario.yaml` repeats the run
+        # the resolved scenario (seed, defaults and the sensor preset's values filled in):
+        # `nbvs reconstruct --scenario OUT/scenario.yaml` repeats the run
         from pydrake.common.yaml import yaml_dump_typed
-        (out / "scenario.yaml").write_text(yaml_dump_typed(sc))
+
+        from ..config.load import with_resolved_sensor
+        (out / "scenario.yaml").write_text(yaml_dump_typed(with_resolved_sensor(sc)))
         log = IterationLog(out / "iterations.jsonl", echo=_print_iteration if verbose else None)
         md = build_mission_diagram(sc, out / "scene", log, meshcat=meshcat)
         if verbose:

@@ -264,6 +264,7 @@ def from_old(o: OldScenario) -> S.Scenario:
         sensor.faults = S.DepthFaults.none()
         sensor.model_binning = 1
         sensor.coarse_binning = 1
+        sensor.recheck_binning = 0
     noise = S.NoiseConfig(sigma_v=o.noise.sigma_v, sigma_w=o.noise.sigma_w, sigma_arm=list(o.noise.sigma_arm),
                           beta=o.noise.beta)
     strategy = {"random_sampling": lambda: S.RandomSampling(),

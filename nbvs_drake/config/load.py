@@ -221,11 +221,21 @@ def resolve_sensor(sensor: SensorConfig) -> SensorConfig:
     return sensor.resolved()
 
 
+def with_resolved_sensor(sc: Scenario) -> Scenario:
+    """A copy of sc whose sensor names every value (its preset's filled in): what a run's
+    scenario.yaml records, so that a later change to a sensor preset does not change what a
+    record's scenario re-runs."""
+    sc = copy.copy(sc)
+    sc.sensor = sc.sensor.resolved()
+    return sc
+
+
 def settings_of(sc) -> dict:
     """A scenario's settings as {dotted name: value}, a variant's tag under its own name
-    ("planner.evaluator": "Hrt"), an unset optional section as None; `base_dir` (the checkout)
-    and `preset` (where the values came from) left out: two runs with equal settings are the
-    same run."""
+    ("planner.evaluator": "Hrt"), an unset optional section as None, the sensor's preset
+    resolved (`with_resolved_sensor`); `base_dir` (the checkout) and `preset` (where the
+    values came from) left out: two runs with equal settings are the same run."""
+    sc = with_resolved_sensor(sc)
     out = {}
 
     def walk(obj, pre):

@@ -33,9 +33,11 @@ OBJECT_UP_AXES = ("x", "y", "z", "-x", "-y", "-z")
 
 SENSOR_PRESETS = {
     "sr4000": dict(width=176, height=144, fov_x_deg=43.6, fov_y_deg=34.6, z_near=0.4,
-                   z_far=5.0, noise_a=0.0, noise_b=0.0, model_binning=1, coarse_binning=1),
+                   z_far=5.0, noise_a=0.0, noise_b=0.0, model_binning=1, coarse_binning=1,
+                   recheck_binning=0),
     "kinect": dict(width=640, height=480, fov_x_deg=57.0, fov_y_deg=43.0, z_near=0.7,
-                   z_far=6.0, noise_a=0.0012, noise_b=0.0019, model_binning=3, coarse_binning=2),
+                   z_far=6.0, noise_a=0.0012, noise_b=0.0019, model_binning=3, coarse_binning=3,
+                   recheck_binning=2),
 }
 
 METRICS = ("sur", "fig", "sig", "vuv", "rsv", "seed001", "surface", "coverage")
@@ -274,11 +276,14 @@ class SensorConfig:
     #: 0.27 deg apart, as the SR4000's 0.25 deg; 1: every pixel)
     model_binning: Optional[int] = None
     #: the planner's coarse pass (planner.evaluator.coarse_stride) counts its stride in blocks
-    #: of this many pixels (the Kinect's 2: one ray per 12 x 12 pixels at coarse_stride 6,
-    #: whose ranking agrees with every pixel's (Spearman 0.994, nbvs bench visibility --sensor
-    #: kinect) where the model pixels' 18 x 18 gave 0.982; the SR4000's 1; None with preset
-    #: custom: model_binning)
+    #: of this many pixels (the Kinect's 3 and the SR4000's 1: one ray per 18 x 18 and 6 x 6
+    #: pixels, about 1.5 deg apart; None with preset custom: model_binning)
     coarse_binning: Optional[int] = None
+    #: the coarse pass's second look, in blocks of this many pixels: the views whose coarse
+    #: rays came near known surface without one landing on it (the registration filter
+    #: undecided) are evaluated again at coarse_stride x recheck_binning pixels per ray
+    #: (the Kinect's 2: 12 x 12; 0: no second look, the SR4000's; None with preset custom: 0)
+    recheck_binning: Optional[int] = None
     #: structured-light faults (shadows, disparity steps, lateral noise, grazing dropouts);
     #: None: the preset's (the Kinect's; none for the SR4000)
     faults: Optional[DepthFaults] = None
@@ -302,6 +307,8 @@ class SensorConfig:
             v = getattr(self, f.name)
             if v is None and f.name == "coarse_binning" and f.name not in base:
                 v = vals["model_binning"]  # (a custom sensor: its model pixels)
+            if v is None and f.name == "recheck_binning" and f.name not in base:
+                v = 0  # (a custom sensor: no second look)
             if v is None:
                 require(f.name in base, f"sensor.{f.name} must be set for preset custom")
                 v = base[f.name]
@@ -317,6 +324,7 @@ class SensorConfig:
         require(rs.noise_a >= 0 and rs.noise_b >= 0, f"{at}.noise_a/noise_b must be >= 0")
         require(rs.model_binning >= 1, f"{at}.model_binning must be >= 1, got {rs.model_binning}")
         require(rs.coarse_binning >= 1, f"{at}.coarse_binning must be >= 1, got {rs.coarse_binning}")
+        require(rs.recheck_binning >= 0, f"{at}.recheck_binning must be >= 0, got {rs.recheck_binning}")
         rs.faults.check(f"{at}.faults")
 
 

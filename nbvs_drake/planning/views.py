@@ -44,6 +44,12 @@ class ViewEvaluator:
         self.coarse_stride = coarse if coarse > self.stride else 0
         self.refine_views = sc.planner.refine_views()
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
+        #: the coarse pass's second look (sensor.recheck_binning; None: none): its rays, at
+        #: coarse_stride blocks of that many pixels, for the views whose coarse rays came near
+        #: known surface without one landing on it (`evaluate_ranked`)
+        self.recheck_stride = sc.planner.coarse_stride() * rs.recheck_binning
+        self.recheck = ray_directions(sc.sensor, self.recheck_stride) if (
+            self.coarse is not None and self.stride < self.recheck_stride < self.coarse_stride) else None
         full, _, t_far = ray_directions(sc.sensor, 1)  # the outermost pixel centres bound every stride's rays
         self.frustum = (K.frustum_planes(full), float(t_far.max()))
         from ..world.sensor import intrinsics
@@ -118,7 +124,11 @@ class ViewEvaluator:
         every state is evaluated with the coarse rays first (the per-ray columns scaled to this
         evaluator's ray count, PER_RAY_COLUMNS), the best `refine_views` of that ranking again
         at ray_stride; the order lists those by their exact score, then the others by their
-        coarse one. Without, every state at ray_stride (the exact ranking)."""
+        coarse one. Without, every state at ray_stride (the exact ranking).
+        With a second look (sensor.recheck_binning), the views whose coarse rays came near known
+        surface without one landing on it (no M_OC_RAYS, but `score.info` above 0: the
+        registration filter undecided, a sliver of surface between the coarse rays) are
+        evaluated again with the second look's denser rays before the ranking."""
         q = np.atleast_2d(q)
         if self.coarse is None or len(q) <= self.refine_views:
             met = self.evaluate(omap, q)
@@ -126,8 +136,15 @@ class ViewEvaluator:
         X = self.kin.camera_poses(q)
         met = np.zeros((len(q), K.N_METRICS))
         seen = self.may_score(omap, X, getattr(score, "surface_margin", None))
-        met[seen] = self._coarse_poses(omap, X[seen], score_only=getattr(score, "per_ray", False),
-                                       roi_margin=getattr(score, "roi_margin", None))
+        kw = dict(score_only=getattr(score, "per_ray", False), roi_margin=getattr(score, "roi_margin", None))
+        met[seen] = self._coarse_poses(omap, X[seen], **kw)
+        info = getattr(score, "info", None)
+        if self.recheck is not None and info is not None:
+            again = seen & (met[:, K.M_OC_RAYS] == 0) & (info(met) > 0)
+            if again.any():
+                met[again] = coarse_to_exact_scale(
+                    self.evaluate_poses(omap, X[again], rays=self.recheck, stride=self.recheck_stride, **kw),
+                    len(self.recheck[0]), len(self.dirs))
         head = np.argsort(-score(met), kind="stable")[:self.refine_views]
         head = head[seen[head]]
         met[head] = self.evaluate_poses(omap, X[head])
@@ -206,16 +223,17 @@ class ViewEvaluator:
         return self._per_map("near", omap.logodds, lambda: near_surface(omap))
 
     def evaluate_poses(self, omap: OccupancyMap, X: np.ndarray, rays=None, score_only: bool = False,
-                       roi_margin: float | None = None) -> np.ndarray:
+                       roi_margin: float | None = None, stride: int | None = None) -> np.ndarray:
         """Metrics of camera poses X (N, 4, 4); `rays`: (dirs, t_near, t_far) of another
-        stride than ray_stride (the coarse pass), whose M_COVER_GAIN weights each ray by its
-        own stride; `score_only`: the per-ray columns only (view_metrics.evaluate_views)."""
+        stride than ray_stride (the coarse pass; `stride` its pixels per ray, None: coarse_stride),
+        whose M_COVER_GAIN weights each ray by its own stride; `score_only`: the per-ray columns only (view_metrics.evaluate_views)."""
         pos = np.ascontiguousarray(X[:, :3, 3])
         rot = np.ascontiguousarray(X[:, :3, :3])
         m = omap.model
         lo = np.ascontiguousarray(omap.logodds, dtype=np.float32)
         dirs, t_near, t_far = (self.dirs, self.t_near, self.t_far) if rays is None else rays
-        stride = self.stride if rays is None else self.coarse_stride
+        if stride is None:
+            stride = self.stride if rays is None else self.coarse_stride
         args = (omap.spec.bmin.astype(np.float64), omap.spec.res, pos, rot, dirs, t_near,
                 t_far, m.l_free, m.l_occ, min(self.n_chunks, len(pos)))
         kw = dict(near_unknown_blinds=self.near_unknown_blinds, surface_q=surface_probability(omap))
@@ -243,9 +261,14 @@ def ranking_score(evaluator: ViewEvaluator, omap: OccupancyMap, metric: str, ove
     """score(metrics) -> (N,): the ranking of random sampling (Vasquez-Gomez et al. 2017 §7.6
     steps 4-6): the information term of the views that pass the registration filter
     (overlap > h; None: no filter), 0 for the others."""
+    def info(met):
+        return evaluator.information(omap, None, met, metric, un_total)
+
     def score(met):
-        info = evaluator.information(omap, None, met, metric, un_total)
-        return info if overlap_h is None else np.where(registration_overlap(met) > overlap_h, info, 0.0)
+        i = info(met)
+        return i if overlap_h is None else np.where(registration_overlap(met) > overlap_h, i, 0.0)
+    # the information term before the registration filter (the coarse pass's second look)
+    score.info = info
     # whether the score reads the per-ray columns only (the coarse pass may skip the distinct
     # voxel sets: view_metrics.evaluate_views' score_only)
     score.per_ray = metric in ("coverage", "surface", "sig", "rsv")
@@ -276,6 +299,7 @@ def scaled_score(score, factor: np.ndarray):
     scaled.surface_margin = score.surface_margin
     scaled.per_ray = score.per_ray
     scaled.roi_margin = score.roi_margin
+    scaled.info = score.info
     return scaled
 
 

@@ -226,7 +226,8 @@ class ViewEvaluator:
                        roi_margin: float | None = None, stride: int | None = None) -> np.ndarray:
         """Metrics of camera poses X (N, 4, 4); `rays`: (dirs, t_near, t_far) of another
         stride than ray_stride (the coarse pass; `stride` its pixels per ray, None: coarse_stride),
-        whose M_COVER_GAIN weights each ray by its own stride; `score_only`: the per-ray columns only (view_metrics.evaluate_views)."""
+        whose M_COVER_GAIN weights each ray by its own stride; `score_only`: the per-ray columns
+        only (view_metrics.evaluate_views)."""
         pos = np.ascontiguousarray(X[:, :3, 3])
         rot = np.ascontiguousarray(X[:, :3, :3])
         m = omap.model

@@ -132,3 +132,52 @@ def _ray_sphere(X, rays, c, r):
     ok = disc > 0
     t = -b[ok] - np.sqrt(disc[ok])
     return o + t[:, None] * d[ok]
+
+
+def test_surface_fusion_leaves_out_a_scan_its_registration_misplaced(sphere):
+    """Five scans of the sphere from around it, FixValue'd as registered scans; the fourth's
+    registration put it 6 cm off (its points and pose moved together, as a registration
+    error moves them). SurfaceFusion's mesh leaves it out (`left_out` names it, its conflict
+    share above mapper.scan_conflict) and lies on the sphere; with the fourth registered
+    right, every scan stays; with mapper.scan_conflict 1 the misplaced one stays, and the
+    mesh carries its surface off the sphere."""
+    from nbvs_drake.perception.reconstruction import consistent_scans, owned_by
+    V, T, _ = sphere
+    c = np.array([0.0, 0.0, Scenario().check().scene.table_height + R + 0.05])
+    E = np.eye(4)
+    E[:3, 3] = [0.04, -0.045, 0.0]
+
+    def run(misplaced: bool, scan_conflict: float = 0.05):
+        sc = Scenario().check()
+        sc.mapper.scan_conflict = scan_conflict
+        fusion = SurfaceFusion(sc.scene, sc.mapper, sc.sensor, 0.1)
+        sim = Simulator(fusion)
+        ctx = sim.get_mutable_context()
+        intr = intrinsics(sc.sensor)
+        rays = _camera_rays(intr)
+        for k in range(5):
+            a = 2 * np.pi * k / 5
+            X = _look_at(c + [0.8 * np.cos(a), 0.8 * np.sin(a), 0.3], c)
+            P = _ray_sphere(X, rays, c, R)
+            if misplaced and k == 3:
+                X, P = E @ X, P + E[:3, 3]
+            fusion.GetInputPort("registered_scan").FixValue(
+                ctx, AbstractValue.Make(RegisteredScan(k + 1, X[:3, 3], P, np.zeros((0, 3)), True, {}, X)))
+            sim.AdvanceTo(0.1 * (k + 1))
+        Vm, _ = fusion.GetOutputPort("mesh").Eval(ctx)
+        d = np.abs(np.linalg.norm(Vm - c, axis=1) - R)
+        return fusion.GetOutputPort("left_out").Eval(ctx), d, fusion.GetOutputPort("scans").Eval(ctx), intr
+
+    left_out, d, scans, intr = run(misplaced=True)
+    assert list(left_out) == [3] and left_out[3] > 0.05, left_out
+    assert np.percentile(d, 95) < 0.003
+    assert consistent_scans(scans, intr)[0] == [0, 1, 2, 4]
+    # the point model's cleaning: the misplaced scan's returns are its own, the others' are not
+    P3 = _ray_sphere(_look_at(c + [0.8 * np.cos(6 * np.pi / 5), 0.8 * np.sin(6 * np.pi / 5), 0.3], c),
+                     _camera_rays(intr), c, R) + E[:3, 3]
+    P0 = _ray_sphere(_look_at(c + [0.8, 0.0, 0.3], c), _camera_rays(intr), c, R)
+    assert owned_by(P3, [scans[3]], intr).mean() > 0.95 and owned_by(P0, [scans[3]], intr).mean() < 0.02
+    left_out, d, _, _ = run(misplaced=False)
+    assert left_out == {} and np.percentile(d, 95) < 0.003
+    left_out, d, _, _ = run(misplaced=True, scan_conflict=1.0)
+    assert left_out == {} and np.percentile(d, 99) > 0.01

@@ -132,7 +132,7 @@ def bench_visibility_sensor(sensor: str = "kinect", trials: int = 8, per_trial: 
                             n_maps: int = 4) -> dict:
     """The planner's view evaluator with `sensor` on the default scene at 2 cm (MAP_2CM; the
     preset nbvs otherwise: one ray per planner.evaluator.stride x sensor.model_binning pixels,
-    coarse to fine) against every
+    coarse to fine, with the sensor's second look) against every
     pixel (one ray each, the exact ranking), on `trials` sets of `per_trial` candidate views
     spread over the maps after 1..n_maps scans, in the same run: the best view the same, Spearman's
     rank correlation, the exact top_k kept, and each evaluator's milliseconds per view."""
@@ -155,6 +155,7 @@ def bench_visibility_sensor(sensor: str = "kinect", trials: int = 8, per_trial: 
     return {
         "scene": f"default (teapot) after 1..{n_maps} scans, 2 cm map", "sensor": f"{rs.preset} {rs.width}x{rs.height}",
         "model_binning": rs.model_binning, "pixels_per_ray": new.stride, "coarse_pixels_per_ray": new.coarse_stride,
+        "second_look_pixels_per_ray": new.recheck_stride if new.recheck is not None else None,
         "rays_per_view": int(len(new.dirs)), "baseline_rays_per_view": int(len(base.dirs)),
         "views_per_trial": per_trial, "trials": trials,
         **_agreement_json(agree, rho, top),

@@ -171,21 +171,31 @@ def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageCl
         omap = mapper.GetOutputPort("map").Eval(mapper.GetMyContextFromRoot(ctx))
         counts = monitor_sys.GetOutputPort("counts").Eval(monitor_sys.GetMyContextFromRoot(ctx))
 
-    with clock.stage(OUTPUTS, "model"):
-        write_ply(out / "model.ply", omap.object_points)
-    with clock.stage(MAP, "surface_fusion"):  # the TSDF mesh of the registered scans
+    from ..perception.reconstruction import mesh_metrics, owned_by, point_metrics, write_mesh_ply
+    with clock.stage(MAP, "surface_fusion"):  # the TSDF mesh of the registered scans that agree
         fusion = md.systems["surface_fusion"]
-        mesh_V, mesh_T = fusion.GetOutputPort("mesh").Eval(fusion.GetMyContextFromRoot(ctx))
-    from ..perception.reconstruction import mesh_metrics, point_metrics, write_mesh_ply
+        fctx = fusion.GetMyContextFromRoot(ctx)
+        mesh_V, mesh_T = fusion.GetOutputPort("mesh").Eval(fctx)
+        # the point model without the returns of the scans the mesh leaves out (misplaced)
+        left_out = fusion.GetOutputPort("left_out").Eval(fctx)
+        model_points = omap.object_points
+        if left_out:
+            scans = fusion.GetOutputPort("scans").Eval(fctx)
+            from ..world.sensor import intrinsics
+            model_points = model_points[~owned_by(model_points, [scans[i] for i in left_out], intrinsics(sc.sensor))]
     with clock.stage(OUTPUTS, "model"):
+        write_ply(out / "model.ply", model_points)
         write_mesh_ply(out / "model_mesh.ply", mesh_V, mesh_T)
     t_rec = time.perf_counter()
     with clock.stage(EVALUATION, "reconstruction"):
         gt_V, gt_T, vox = md.mesh.vertices, md.mesh.triangles, sc.mapper.voxel_size
         reconstruction = {
-            "points": point_metrics(omap.object_points, gt_V, gt_T, md.gt_points, vox),
+            "points": point_metrics(model_points, gt_V, gt_T, md.gt_points, vox),
             "mesh": mesh_metrics(mesh_V, mesh_T, gt_V, gt_T, md.gt_points, vox, np.random.default_rng([sc.seed, 23])),
             "mesh_vertices": int(len(mesh_V)), "mesh_triangles": int(len(mesh_T)),
+            # the scans the model leaves out: {number among the integrated scans: conflict share}
+            "scans_left_out": {str(k): round(float(v), 4) for k, v in sorted(left_out.items())},
+            "points_left_out": int(len(omap.object_points) - len(model_points)),
         }
     t_rec = time.perf_counter() - t_rec
     ceiling = None

@@ -371,9 +371,14 @@ class MapperConfig:
     #: None: the sensor's depth error at 1.5 m (3 sigma_z and half a disparity step), at least
     #: 5 mm: 5 mm for the SR4000, 14 mm for the Kinect
     table_clearance: Optional[float] = None
+    #: the model (mesh and points) leaves out a scan whose returns lie where the other scans
+    #: saw through, and theirs where it saw through, more than this share of the time (a scan
+    #: its registration misplaced; perception.reconstruction.consistent_scans); 1: every scan
+    scan_conflict: float = 0.05
 
     def check(self, scene: SceneConfig, at: str = "mapper") -> None:
         require(self.voxel_size > 0, f"{at}.voxel_size must be > 0, got {self.voxel_size}")
+        require(0 < self.scan_conflict <= 1, f"{at}.scan_conflict must be in (0, 1], got {self.scan_conflict}")
         require(self.margin >= 0, f"{at}.margin must be >= 0, got {self.margin}")
         require(0.5 < self.prob_hit < 1, f"{at}.prob_hit must be in (0.5, 1), got {self.prob_hit}")
         require(0 < self.prob_miss < 0.5, f"{at}.prob_miss must be in (0, 0.5), got {self.prob_miss}")

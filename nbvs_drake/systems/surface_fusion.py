@@ -7,7 +7,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem
 
 from ..config import MapperConfig, SceneConfig, SensorConfig, resolve_sensor
-from ..perception.reconstruction import depth_from_points, fuse_tsdf
+from ..perception.reconstruction import consistent_scans, depth_from_points, fuse_tsdf
 from ..stage_clock import MAP, stage
 from ..world.sensor import intrinsics
 from .messages import RegisteredScan
@@ -30,12 +30,18 @@ class SurfaceFusion(LeafSystem):
     surface mesh of their TSDF fusion (`reconstruction.fuse_tsdf`: 3 mm voxels, 12 mm
     truncation), cropped to W_box from `mapper.table_clearance` above the table top: the
     table is not part of the model. A scan not integrated (its registration failed) is left
-    out, as the map leaves it out.
+    out, as the map leaves it out, and so is a scan that disagrees with the others (its
+    returns where they saw through, theirs where it saw through: a scan its registration
+    misplaced; `reconstruction.consistent_scans`, above `mapper.scan_conflict`).
 
     Input ports:
       - registered_scan (abstract RegisteredScan): the newest scan at its registered pose.
     Output ports:
-      - mesh (abstract tuple (vertices (V, 3), triangles (T, 3))): the fused surface.
+      - mesh (abstract tuple (vertices (V, 3), triangles (T, 3))): the fused surface of the
+        scans that agree.
+      - left_out (abstract dict {scan number (0: the first integrated): conflict share}): the
+        scans the mesh leaves out.
+      - scans (abstract tuple of (X_WC (4, 4), depth (h, w))): every integrated scan.
     State: abstract (the scans kept).
     """
 
@@ -51,11 +57,18 @@ class SurfaceFusion(LeafSystem):
         self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.base_z() + mapper.table_clearance])
         self.crop_max = np.array(s.bbox_max, float)
         self._intr = intrinsics(sensor)
-        self._z_far = resolve_sensor(sensor).z_far
+        rs = resolve_sensor(sensor)
+        self._z_far = rs.z_far
+        self._sigma = lambda z: rs.noise_a + rs.noise_b * (z - 0.4) ** 2  # the axial noise (schema)
+        self.max_conflict = mapper.scan_conflict
         self._scan = self.DeclareAbstractInputPort("registered_scan", AbstractValue.Make(RegisteredScan()))
         self._state = self.DeclareAbstractState(AbstractValue.Make(_Scans()))
         empty = (np.zeros((0, 3)), np.zeros((0, 3), np.int32))
         self.DeclareAbstractOutputPort("mesh", lambda: AbstractValue.Make(empty), self._calc_mesh,
+                                       {self.abstract_state_ticket(self._state)})
+        self.DeclareAbstractOutputPort("left_out", lambda: AbstractValue.Make({}), self._calc_left_out,
+                                       {self.abstract_state_ticket(self._state)})
+        self.DeclareAbstractOutputPort("scans", lambda: AbstractValue.Make(()), self._calc_scans,
                                        {self.abstract_state_ticket(self._state)})
         self.DeclarePeriodicUnrestrictedUpdateEvent(dt, 0.0, self._update)
 
@@ -72,10 +85,31 @@ class SurfaceFusion(LeafSystem):
                 scans = scans + ((np.asarray(scan.pose, float), depth_from_points(P, scan.pose, *self._intr)),)
         state.get_mutable_abstract_state(self._state).set_value(_Scans(scan.index, scans))
 
-    def _calc_mesh(self, context, output):
+    def _consistent(self, context) -> tuple[list, dict]:
+        """(the scans that agree, {scan number: conflict share} of those left out), once per state."""
         mem: _Scans = context.get_abstract_state(self._state).get_value()
-        if not mem.scans:
+        have = getattr(mem, "consistent", None)
+        if have is None:
+            if self.max_conflict >= 1.0:
+                have = (list(mem.scans), {})
+            else:
+                w, h = self._intr[:2]
+                step = max(2, int(round(np.sqrt(w * h / 6336.0))))  # about the SR4000's pixels at 2
+                kept, left_out = consistent_scans(mem.scans, self._intr, self._sigma, self.max_conflict, step)
+                have = ([mem.scans[i] for i in kept], left_out)
+            mem.consistent = have
+        return have
+
+    def _calc_left_out(self, context, output):
+        output.set_value(dict(self._consistent(context)[1]))
+
+    def _calc_scans(self, context, output):
+        output.set_value(tuple(context.get_abstract_state(self._state).get_value().scans))
+
+    def _calc_mesh(self, context, output):
+        scans = self._consistent(context)[0]
+        if not scans:
             output.set_value((np.zeros((0, 3)), np.zeros((0, 3), np.int32)))
             return
-        output.set_value(fuse_tsdf(mem.scans, self._intr, self.crop_min, self.crop_max, voxel=self.voxel,
+        output.set_value(fuse_tsdf(scans, self._intr, self.crop_min, self.crop_max, voxel=self.voxel,
                                    trunc=4 * self.voxel, z_far=self._z_far))

@@ -240,7 +240,8 @@ def is_old_setting(key: str, value: str = "") -> bool:
 
 
 def _copy(cls, old):
-    return cls(**{f.name: getattr(old, f.name) for f in dc.fields(cls)})
+    """cls from the fields of `old` it shares (a field added since takes its default)."""
+    return cls(**{f.name: getattr(old, f.name) for f in dc.fields(cls) if hasattr(old, f.name)})
 
 
 def from_old(o: OldScenario) -> S.Scenario:

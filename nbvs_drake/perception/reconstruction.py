@@ -144,23 +144,32 @@ def _nearest_around(depth: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(m) & (depth > 0), m, 0.0)
 
 
+def _depth_at(points: np.ndarray, X_WC: np.ndarray, image: np.ndarray, intr: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """(z, d) (N,): each point's depth in the camera at X_WC, and the image's value at the
+    pixel it falls on (`depth_from_points`' pixels); d 0 for a point behind the camera or
+    outside the image."""
+    w, h, fx, fy, cx, cy = intr
+    X_WC = np.asarray(X_WC, float)
+    p = (np.asarray(points, float).reshape(-1, 3) - X_WC[:3, 3]) @ X_WC[:3, :3]
+    z = p[:, 2]
+    ok = z > 1e-6
+    zs = np.where(ok, z, 1.0)
+    u = np.rint(fx * p[:, 0] / zs + cx).astype(np.int64)
+    v = np.rint(fy * p[:, 1] / zs + cy).astype(np.int64)
+    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    d = np.zeros(len(p))
+    d[ok] = np.asarray(image)[v[ok], u[ok]]
+    return z, d
+
+
 def seen_through(points: np.ndarray, X_WC: np.ndarray, near: np.ndarray, intr: tuple,
                  sigma=lambda z: 0.0) -> tuple[np.ndarray, np.ndarray]:
     """(overlap, conflict) (N,) bool: which points fall on a pixel where the scan at X_WC has a
     return (`near`: `_nearest_around` of its depth), and which of those lie nearer the camera
     than that return by more than CONFLICT_MARGIN_M + 3 sigma(z) (the scan's rays passed
     through them)."""
-    w, h, fx, fy, cx, cy = intr
-    p = (np.asarray(points, float) - X_WC[:3, 3]) @ X_WC[:3, :3]
-    z = p[:, 2]
-    ok = z > 1e-3
-    zs = np.where(ok, z, 1.0)
-    u = np.rint(fx * p[:, 0] / zs + cx).astype(np.int64)
-    v = np.rint(fy * p[:, 1] / zs + cy).astype(np.int64)
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    d = np.zeros(len(p))
-    d[ok] = near[v[ok], u[ok]]
-    ok &= d > 0
+    z, d = _depth_at(points, X_WC, near, intr)
+    ok = d > 0
     return ok, ok & (z < d - CONFLICT_MARGIN_M - 3.0 * sigma(d))
 
 
@@ -205,21 +214,11 @@ def owned_by(points: np.ndarray, scans, intr: tuple, tol: float = 0.002) -> np.n
     """Which points (N, 3) are returns of one of the scans, each (X_WC, depth): they fall on
     a pixel of its depth image whose return is at their depth, within `tol` (the depth image
     holds each pixel's return; `depth_from_points`)."""
-    w, h, fx, fy, cx, cy = intr
     P = np.asarray(points, float).reshape(-1, 3)
     out = np.zeros(len(P), bool)
     for X_WC, depth in scans:
-        X_WC = np.asarray(X_WC, float)
-        p = (P - X_WC[:3, 3]) @ X_WC[:3, :3]
-        z = p[:, 2]
-        ok = z > 1e-6
-        zs = np.where(ok, z, 1.0)
-        u = np.rint(fx * p[:, 0] / zs + cx).astype(np.int64)
-        v = np.rint(fy * p[:, 1] / zs + cy).astype(np.int64)
-        ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        d = np.zeros(len(P))
-        d[ok] = np.asarray(depth)[v[ok], u[ok]]
-        out |= ok & (d > 0) & (np.abs(z - d) <= tol)
+        z, d = _depth_at(P, X_WC, depth, intr)
+        out |= (d > 0) & (np.abs(z - d) <= tol)
     return out
 
 

@@ -9,7 +9,7 @@ from pydrake.systems.framework import LeafSystem
 from ..config import MapperConfig, SceneConfig, SensorConfig, resolve_sensor
 from ..perception.reconstruction import consistent_scans, depth_from_points, fuse_tsdf
 from ..stage_clock import MAP, stage
-from ..world.sensor import intrinsics
+from ..world.sensor import axial_noise_sigma, intrinsics
 from .messages import RegisteredScan
 
 
@@ -57,9 +57,8 @@ class SurfaceFusion(LeafSystem):
         self.crop_min = np.array([s.bbox_min[0], s.bbox_min[1], s.base_z() + mapper.table_clearance])
         self.crop_max = np.array(s.bbox_max, float)
         self._intr = intrinsics(sensor)
-        rs = resolve_sensor(sensor)
-        self._z_far = rs.z_far
-        self._sigma = lambda z: rs.noise_a + rs.noise_b * (z - 0.4) ** 2  # the axial noise (schema)
+        self._z_far = resolve_sensor(sensor).z_far
+        self._sigma = lambda z: axial_noise_sigma(sensor, z)
         self.max_conflict = mapper.scan_conflict
         self._scan = self.DeclareAbstractInputPort("registered_scan", AbstractValue.Make(RegisteredScan()))
         self._state = self.DeclareAbstractState(AbstractValue.Make(_Scans()))

@@ -519,3 +519,27 @@ def test_legs_after_turns_only_end_once_the_turning_since_the_last_end_adds_up()
     # each turn on its own (legs that also end after drives): only the long one
     assert [e for e in leg_ends(c, n) if c[e - 1, 1] != 0] == [39]
     assert leg_ends(seq(("t", 12), ("d", 5)), n, after_drives=False) == [12, 17]
+
+
+def test_a_short_turn_ends_a_leg_when_the_drive_after_it_would_carry_its_heading_spread_far():
+    """legs.turn_drift: the suitcase's seed 1 collided after a 3-step turn (0.18 rad) that a
+    1.45 m drive followed; 3 (sigma_w dt sqrt(3) - floor) 1.45 m = 8 cm sideways a frame would
+    have removed. Such a turn now ends a leg; the same turn before a short drive, and a one-step
+    turn (whose spread a frame cannot lower) before any drive, do not."""
+    from nbvs_drake.world.motion import LegRule, TurnDrift, leg_ends
+
+    def seq(*parts):  # ("t", steps) turn in place at 0.6 rad/s, ("d", steps) drive at 0.3 m/s
+        return np.concatenate([np.tile([[0.0, 0.6, 0, 0, 0, 0, 0]] if k == "t" else [[0.3, 0, 0, 0, 0, 0, 0]], (s, 1))
+                               for k, s in parts])
+    sc = load_scenario("real_robot_obstacles")
+    rule = LegRule.of(sc.localisation.verified_views, sc.noise, sc.robot.control_dt)
+    assert rule.drift is not None and rule.drift.limit == pytest.approx(0.03) and rule.min_turn_steps == 5
+    far, near = seq(("t", 3), ("d", 49)), seq(("t", 3), ("d", 8))  # 1.47 m and 0.24 m
+    assert rule.ends(far) == [3, len(far)] and rule.turn_ends(far) == [3, len(far)]
+    assert rule.ends(near) == [len(near)]
+    assert rule.ends(seq(("t", 1), ("d", 60))) == [61]
+    # the limit: 3 steps end a leg from about half a metre of drive on
+    d = TurnDrift(0.028, np.hypot(0.01, 0.028), 0.03, 0.1)
+    assert d.ends_leg(3, 0.6) and not d.ends_leg(3, 0.45) and not d.ends_leg(1, 10.0)
+    # without turn_drift (the room's preset among the chairs) the short turn stays in its leg
+    assert leg_ends(far, rule.min_turn_steps) == [len(far)]

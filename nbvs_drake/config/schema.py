@@ -401,8 +401,14 @@ class Legs:
     #: only after the long turns. A drive adds little error of its own (sigma_v = 1.65 mm/s),
     #: and the frame after the turn that follows it fixes that turn's heading anyway
     after_drives: bool = True
+    #: m; with after_turns, a leg also ends after a shorter turn whose heading spread (3 sigma,
+    #: less what a frame leaves) the drive after it would carry more than this sideways;
+    #: 0: only the long turns (LegRule, TurnDrift)
+    turn_drift: float = 0.0
 
     def check(self, at: str) -> None:
+        require(self.turn_drift >= 0 and math.isfinite(self.turn_drift),
+                f"{at}: turn_drift must be a distance >= 0 m (0: off), not {self.turn_drift}")
         require(self.after_drives or self.after_turns,
                 f"{at}: legs that end neither after drives nor after turns are one leg; set after_turns "
                 f"or after_drives, or no legs")

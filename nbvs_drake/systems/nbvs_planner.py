@@ -194,11 +194,9 @@ class NBVSPlanner(LeafSystem):
 
     def _first_leg(self, res: PlanResult, legs: tuple) -> tuple[PlanResult, tuple]:
         """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of
-        its own (legs.after_turns, `LegRule.min_turn_steps`): that turn, and the leg's end
+        its own (legs.after_turns, `LegRule.turn_ends`): that turn, and the leg's end
         ahead of `legs`."""
-        from ..world.motion import leg_ends
-        n = self.legs.min_turn_steps
-        ends = leg_ends(res.controls, n, after_drives=False) if n else [len(res.controls)]
+        ends = self.legs.turn_ends(res.controls)
         if len(ends) == 1:
             return res, legs
         rest = tuple(res.states[e] for e in ends[1:])

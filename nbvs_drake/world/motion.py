@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses as dc
 import math
+from typing import Optional
 
 import numpy as np
 from scipy.special import ndtr, ndtri
@@ -153,13 +154,32 @@ def truncated_normal_logpdf(eps: np.ndarray, sigma: np.ndarray, beta: float) -> 
 
 
 @dc.dataclass(frozen=True)
+class TurnDrift:
+    """legs.turn_drift: a turn in place too short to be a long one still ends a leg when the
+    drive after it would carry the heading spread a frame there removes more than `limit`
+    sideways: 3 (step sqrt(n) - floor) d > limit for a turn of n steps and a drive of d m,
+    where step = sigma_w dt is one step's heading spread and floor what a frame and one
+    corrective step leave (`LegRule.of`)."""
+    step: float  #: rad, sigma_w dt
+    floor: float  #: rad
+    limit: float  #: m
+    dt: float  #: s, the control period (a drive's length is sum |v| dt)
+
+    def ends_leg(self, turn_steps: int, drive_m: float) -> bool:
+        return 3.0 * (self.step * math.sqrt(turn_steps) - self.floor) * drive_m > self.limit
+
+
+@dc.dataclass(frozen=True)
 class LegRule:
     """Where a plan's legs end (localisation.verified_views.legs): `on` when plans run in legs
     (verified views with legs, under motion noise); `min_turn_steps` > 0 (legs.after_turns):
-    a leg also ends after a turn in place of at least that many steps that a drive follows."""
+    a leg also ends after a turn in place of at least that many steps that a drive follows;
+    `drift` (legs.turn_drift > 0, with after_turns): also after a shorter turn whose heading
+    spread the drive after it would carry too far sideways (`TurnDrift`)."""
     on: bool
     min_turn_steps: int
     after_drives: bool = True  #: legs.after_drives
+    drift: Optional[TurnDrift] = None
 
     @staticmethod
     def of(verified_views, noise: NoiseConfig, control_dt: float) -> "LegRule":
@@ -167,35 +187,62 @@ class LegRule:
         vv = verified_views
         legs = vv.legs if vv is not None else None
         on = bool(legs is not None and np.any(noise_sigmas(noise) > 0))
-        steps = 0
+        steps, drift = 0, None
         step = noise.sigma_w * control_dt
         if legs is not None and legs.after_turns and step > 0:
-            # the first turn whose heading spread, sigma_w dt sqrt(n), is more than twice what the
+            # the first turn whose heading spread, sigma_w dt sqrt(n), is more than twice what a
             # frame leaves (the registration's heading error and one step of corrective turn)
             floor = math.hypot(REGISTERED_SIGMA[2], step)
             steps = int(math.floor((2.0 * floor / step) ** 2)) + 1
-        return LegRule(on, steps, bool(legs is None or legs.after_drives))
+            if legs.turn_drift > 0:
+                drift = TurnDrift(step, floor, float(legs.turn_drift), float(control_dt))
+        return LegRule(on, steps, bool(legs is None or legs.after_drives), drift)
 
     def ends(self, controls: np.ndarray) -> list[int]:
         """Where a plan's legs end: `leg_ends` when plans run in legs, else [m]."""
         if not self.on:
             return [len(np.asarray(controls).reshape(-1, NU))]
-        return leg_ends(controls, self.min_turn_steps, self.after_drives)
+        return leg_ends(controls, self.min_turn_steps, self.after_drives, self.drift)
+
+    def turn_ends(self, controls: np.ndarray) -> list[int]:
+        """Where a re-planned leg (turn, drive, turn) ends after its turns alone (the leg's own
+        drive is its end), as `ends` with after_drives off; [m] without after_turns."""
+        if not self.min_turn_steps:
+            return [len(np.asarray(controls).reshape(-1, NU))]
+        return leg_ends(controls, self.min_turn_steps, False, self.drift)
 
 
-def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True) -> list[int]:
+def _drive_after(c: np.ndarray, drive: np.ndarray, dt: float) -> np.ndarray:
+    """For each step i, the length (m) of the drive that starts at step i + 1 (0 if none)."""
+    m = len(c)
+    out = np.zeros(m)
+    run = 0.0
+    for i in range(m - 1, 0, -1):  # run: the drive starting at step i
+        run = run + abs(c[i, 0]) * dt if drive[i] else 0.0
+        out[i - 1] = run
+    return out
+
+
+def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool = True,
+             drift: Optional[TurnDrift] = None) -> list[int]:
     """The legs of a plan (verified views' legs): the end index (exclusive, into the controls) of
     each, one after every drive phase (v != 0) that more base motion follows, and the last
     at m. A plan with one drive, or none, is one leg unless a turn follows its drive.
     min_turn_steps > 0 (legs.after_turns): a leg also ends after every turn in place
     (omega != 0, v = 0) of at least that many steps that a drive follows, so the frame there
-    fixes the heading before the drive. after_drives=False (legs.after_drives): only ends after
-    turns, and then after the turning steps since the last end add up to min_turn_steps (one
-    long turn or several shorter ones), before the drive that follows them."""
+    fixes the heading before the drive; with `drift` (legs.turn_drift), also after a shorter
+    turn that the drive after it would carry too far sideways (`TurnDrift.ends_leg`).
+    after_drives=False (legs.after_drives): only ends after turns, and then after the turning
+    steps since the last end add up to min_turn_steps (one long turn or several shorter ones),
+    or to a turn `drift` ends, before the drive that follows them."""
     c = np.asarray(controls, float).reshape(-1, NU)
     m = len(c)
     drive = c[:, 0] != 0.0
     turn = (c[:, 1] != 0.0) & ~drive
+    ahead = _drive_after(c, drive, drift.dt) if drift is not None and m else np.zeros(m)
+
+    def long_turn(i: int, n: int) -> bool:
+        return min_turn_steps > 0 and (n >= min_turn_steps or (drift is not None and drift.ends_leg(n, ahead[i])))
     if after_drives:
         later = np.zeros(m, bool)  # base motion after step i
         run = np.zeros(m, int)  # steps of the turn that ends at step i
@@ -204,7 +251,7 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
         for i in range(m):
             run[i] = (run[i - 1] + 1 if i else 1) if turn[i] else 0
         ends = [i + 1 for i in range(m - 1) if (drive[i] and not drive[i + 1] and later[i])
-                or (min_turn_steps > 0 and turn[i] and drive[i + 1] and run[i] >= min_turn_steps)]
+                or (turn[i] and drive[i + 1] and long_turn(i, int(run[i])))]
         return ends + [m]
     # after turns only: the heading's spread grows with every turning step since the last
     # frame, so a leg ends before the drive that follows min_turn_steps of them in all (one
@@ -212,7 +259,7 @@ def leg_ends(controls: np.ndarray, min_turn_steps: int = 0, after_drives: bool =
     ends, acc = [], 0
     for i in range(m - 1):
         acc += int(turn[i])
-        if min_turn_steps > 0 and turn[i] and drive[i + 1] and acc >= min_turn_steps:
+        if turn[i] and drive[i + 1] and long_turn(i, acc):
             ends.append(i + 1)
             acc = 0
     return ends + [m]

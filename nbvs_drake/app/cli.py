@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -30,7 +31,10 @@ def _cmd_reconstruct(args):
         from pydrake.geometry import Meshcat, MeshcatParams
         meshcat = Meshcat(MeshcatParams(host="localhost", port=args.meshcat_port))
         print(f"nbvs: live view (Meshcat) at {meshcat.web_url()}", flush=True)
-    reconstruct(args.scenario, out=args.out, seed=args.seed, overrides=args.set, overwrite=args.overwrite,
+    overrides = list(args.set)
+    if args.planner:  # a plug-in planner: the scenario's strategy (its records re-run it the same way)
+        overrides.append("planner.strategy=!Plugin {entry: %s}" % json.dumps(args.planner))
+    reconstruct(args.scenario, out=args.out, seed=args.seed, overrides=overrides, overwrite=args.overwrite,
                 verbose=not args.quiet, meshcat=meshcat)
     if meshcat is not None and sys.stdin.isatty():
         try:
@@ -117,6 +121,10 @@ def main(argv=None) -> int:
     r.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override one scenario field, e.g. --set noise.sigma_w=0.14 --set planner.top_k=50 "
                         "(YAML value; repeatable; recorded in the run's scenario.yaml)")
+    r.add_argument("--planner", default=None, metavar="MODULE:CLASS",
+                   help="a plug-in planner (a class implementing the planner interface; a module in the current "
+                        "folder or on PYTHONPATH, or an entry point of the group nbvs_drake.planners): "
+                        "sets planner.strategy to !Plugin {entry: MODULE:CLASS}")
     r.add_argument("--quiet", action="store_true")
     r.add_argument("--meshcat", action="store_true",
                    help="show the run live in Meshcat (robot, map voxels, candidates, plan); prints the URL")

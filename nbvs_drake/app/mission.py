@@ -111,17 +111,21 @@ def _finish_clock(summary: dict, clock: StageClock):
 
 
 def run_mission(sc: Scenario, out_dir: str | Path, verbose: bool = True, meshcat=None,
-                clock: StageClock | None = None) -> dict:
+                clock: StageClock | None = None, attach=None, visual_outputs: bool = True) -> dict:
     """`meshcat`: a pydrake Meshcat that shows the run live (robot, map, plans), or None.
     `clock`: the run's stage clock, started where its time begins (`reconstruct`'s entry);
     None: one started here. summary.json's `wall_s` runs from the clock's start to the final
-    summary.json, and `stages_s` splits it into the clock's disjoint stages (stage_clock.py)."""
+    summary.json, and `stages_s` splits it into the clock's disjoint stages (stage_clock.py).
+    `attach(md, simulator)`: called once the diagram and its Simulator exist, before it is
+    initialised (nbvs_drake.gym hands the planner's decisions to an agent there).
+    `visual_outputs` False: no paths.png or replay.html (the rest is written)."""
     clock = clock or StageClock()
     with clock.running():
-        return _run_mission(sc, Path(out_dir), verbose, meshcat, clock)
+        return _run_mission(sc, Path(out_dir), verbose, meshcat, clock, attach, visual_outputs)
 
 
-def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageClock) -> dict:
+def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageClock, attach=None,
+                 visual_outputs: bool = True) -> dict:
     with clock.stage(SETUP, "diagram"):
         # Open3D (registration, surface fusion) before the first scan: a Ctrl-C that lands in its
         # import mid-run leaves it half initialised, and it then exits with status 1 at shutdown
@@ -161,6 +165,8 @@ def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageCl
             return EventStatus.Succeeded()
 
         sim.set_monitor(monitor)
+        if attach is not None:
+            attach(md, sim)
         sim.Initialize()
     with clock.stage(SIMULATOR):
         sim.AdvanceTo(sc.mission.max_sim_time)
@@ -284,6 +290,8 @@ def _run_mission(sc: Scenario, out: Path, verbose: bool, meshcat, clock: StageCl
         }
         _finish_clock(summary, clock)
         _write_json(out / "summary.json", summary)
+    if not visual_outputs:
+        return summary
     # paths.png and replay.html after summary.json: a failure there cannot lose the results
     with clock.stage(OUTPUTS, "visual_outputs"):
         from ..outputs.visual_outputs import write_visual_outputs

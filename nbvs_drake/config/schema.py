@@ -567,10 +567,23 @@ class Oracle:
     """The greedy oracle: knows the true object and takes the view that adds the most coverage."""
 
 
-Strategy = Union[RandomSampling, Ort, ViewSampling, ViewCircle, RandomViews, Oracle]
-#: each strategy's name in reports (summary.json's "planner")
+@dc.dataclass
+class Plugin:
+    """A user's planner (nbvs_drake.planning.plugins): a class implementing the planner
+    interface (`plan(PlanRequest) -> PlanResult`), built as Class(parts, **options) from the
+    project's planning parts (`PlannerParts`: the kinematics, the state sampler, the view
+    evaluator, the per-plan obstacles, the motion planner, the utility)."""
+    #: "package.module:Class", or the name of an entry point of the group nbvs_drake.planners
+    entry: str = ""
+    #: keyword arguments of the class, each value written as YAML ("0.5", "true", "[1, 2]")
+    options: dict[str, str] = dc.field(default_factory=dict)
+
+
+Strategy = Union[RandomSampling, Ort, ViewSampling, ViewCircle, RandomViews, Oracle, Plugin]
+#: each strategy's name in reports (summary.json's "planner"); a plugin's is its entry
 STRATEGY_WORDS = {"RandomSampling": "random_sampling", "Ort": "ort", "ViewSampling": "view_sampling",
-                  "ViewCircle": "view_circle", "RandomViews": "random_views", "Oracle": "oracle"}
+                  "ViewCircle": "view_circle", "RandomViews": "random_views", "Oracle": "oracle",
+                  "Plugin": "plugin"}
 
 
 @dc.dataclass
@@ -729,6 +742,8 @@ class PlannerConfig:
 
     def strategy_word(self) -> str:
         """The strategy's name in reports (`ort`)."""
+        if isinstance(self.strategy, Plugin):
+            return f"plugin:{self.strategy.entry}"
         return STRATEGY_WORDS[variant_name(self.strategy)]
 
     def hrt_a(self) -> int:
@@ -756,6 +771,9 @@ class PlannerConfig:
 
     def check(self, scene: SceneConfig, sensor: SensorConfig, at: str = "planner") -> None:
         s = self.strategy
+        if isinstance(s, Plugin):
+            require(bool(s.entry.strip()), f"{at}.strategy: a !Plugin needs its entry, 'package.module:Class' "
+                                           f"or an entry point's name (group nbvs_drake.planners)")
         if isinstance(s, Ort):
             require(s.vertices >= 2, f"{at}.strategy.vertices must be >= 2, got {s.vertices}")
             require(s.batch >= 1, f"{at}.strategy.batch must be >= 1, got {s.batch}")

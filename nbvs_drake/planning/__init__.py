@@ -27,6 +27,9 @@ def make_planner(sc, kin, wbox_model=None, bulk_checks: bool = True, truth_mesh=
     motion = MotionPlanner(sc, kin, sampler, bulk_checks=bulk_checks)
     overlap_h = None if p.strategy_name() == "ViewSampling" else p.overlap_h
     utility = make_utility(sc, evaluator, motion, overlap_h)
+    if p.strategy_name() == "Plugin":  # a user's planner (planning/plugins.py)
+        from .plugins import PlannerParts, make_plugin
+        return make_plugin(p.strategy, PlannerParts(sc, kin, sampler, evaluator, obstacles, motion, utility, overlap_h))
     if p.strategy_name() in ("ViewCircle", "RandomViews"):
         from .baselines import make_baseline
         return make_baseline(sc, kin, sampler, evaluator, obstacles, motion, utility, overlap_h)

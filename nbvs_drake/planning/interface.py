@@ -53,6 +53,9 @@ class PlanResult:
     candidates: list = dc.field(default_factory=list)
     #: the path's vertices in the search that found it (motion_planner.FoundPath.nodes; 0: none)
     path_nodes: int = 0
+    #: the scored feasible candidates `candidates` lists, as PlanResults with their paths (this
+    #: one among them): what an agent chooses from (nbvs_drake.gym); not written to records
+    alternatives: list = dc.field(default_factory=list, repr=False)
 
     def to_json(self) -> dict:
         d = {"status": self.status, "utility": self.utility, "factors": self.factors,

@@ -278,7 +278,7 @@ def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, reques
     if hasattr(utility, "checks_s"):
         utility.checks_s = 0.0
     best = None
-    kept = []
+    kept, alternatives = [], []
     n_path = n_tried = n_feasible = 0
     t_utility = 0.0
     for reachable, tried in batches:
@@ -289,6 +289,7 @@ def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, reques
         n_feasible += n
         t_utility += time.perf_counter() - tu
         kept += [(r.q_goal, r.utility) for r in feasible]
+        alternatives += feasible
         for r in feasible:
             if best is None or r.utility > best.utility:
                 best = r
@@ -310,4 +311,5 @@ def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, reques
     stages["with_path"] = n_path
     if best is not None:
         best.candidates = kept
+        best.alternatives = alternatives
     return best

@@ -24,7 +24,7 @@ from pydrake.systems.sensors import PixelType, RgbdSensor
 from ..config import SensorConfig, resolve_sensor
 from ..stage_clock import SCANS, stage
 from ..world.robot import CAMERA_BODY, RobotKinematics
-from ..world.sensor import apply_depth_faults, axial_noise_sigma, camera_info, render_camera_info
+from ..world.sensor import axial_noise_sigma, camera_info, noisy_depth, render_camera_info
 
 RENDERER = "vtk"
 
@@ -105,15 +105,8 @@ class DepthNoise(LeafSystem):
         if not self.active:
             output.set_value(image)
             return
-        z = np.array(image.data, np.float64)
-        finite = np.isfinite(z) & (z > 0)  # 0: too close, no return (as +inf: too far)
         step = int(round(context.get_time() / self.dt))
-        if self.axial:
-            rng = np.random.default_rng([self.seed, 11, step])
-            dz = rng.normal(0.0, 1.0, z.shape) * axial_noise_sigma(self.sensor, np.where(finite, z, 0.4))
-            z = np.where(finite, z + dz, z)
-        if self.faults:
-            z = apply_depth_faults(z[:, :, 0], self.sensor, np.random.default_rng([self.seed, 12, step]))[:, :, None]
+        z = noisy_depth(np.asarray(image.data)[:, :, 0], self.sensor, self.seed, step)[:, :, None]
         out = output.get_mutable_value()
         out.resize(image.width(), image.height())
         out.mutable_data[:] = z.astype(np.float32)

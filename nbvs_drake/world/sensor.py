@@ -63,6 +63,22 @@ def axial_noise_sigma(sensor: SensorConfig, z: np.ndarray) -> np.ndarray:
     return s.noise_a + s.noise_b * (np.asarray(z) - 0.4) ** 2
 
 
+def noisy_depth(z: np.ndarray, sensor: SensorConfig, seed: int, step: int) -> np.ndarray:
+    """The depth image (h, w) the sensor returns for the exact depth z (metres; +-inf or 0
+    where nothing returns): its axial noise (`axial_noise_sigma`, drawn from the generator of
+    (seed, 11, step)), then its faults (`apply_depth_faults`, from (seed, 12, step)). The
+    camera's DepthNoise system and the view sphere (nbvs_drake.gym) both return this."""
+    z = np.array(z, np.float64)
+    finite = np.isfinite(z) & (z > 0)  # 0: too close, no return (as +inf: too far)
+    if np.any(axial_noise_sigma(sensor, np.array([0.4, 5.0])) > 0):
+        rng = np.random.default_rng([seed, 11, step])
+        dz = rng.normal(0.0, 1.0, z.shape) * axial_noise_sigma(sensor, np.where(finite, z, 0.4))
+        z = np.where(finite, z + dz, z)
+    if resolve_sensor(sensor).faults.any():
+        z = apply_depth_faults(z, sensor, np.random.default_rng([seed, 12, step]))
+    return z
+
+
 def apply_depth_faults(z: np.ndarray, sensor: SensorConfig, rng: np.random.Generator) -> np.ndarray:
     """A structured-light sensor's faults (`DepthFaults`) applied to a depth image z (h, w),
     metres, after its axial noise; returns a new image. Pixels that return nothing become NaN

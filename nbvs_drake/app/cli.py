@@ -101,6 +101,41 @@ def _cmd_experiment(args):
         raise SystemExit(1)
 
 
+def _cmd_benchmark(args):
+    import shlex
+
+    from ..experiments import ExperimentError, listing, run_experiment
+    from ..experiments.benchmark import load_protocol, protocol_names, with_plugins, write_benchmark_table
+    from ..experiments.runner import make_executor
+    out = args.out or "results/benchmarks"
+    if args.list:
+        print(listing([load_protocol(n) for n in protocol_names()]))
+        return
+    if not args.protocol:
+        raise ExperimentError(f"name a protocol: {', '.join(protocol_names())} (`nbvs benchmark --list`)")
+    d = load_protocol(args.protocol)
+    if args.planner:
+        d = with_plugins(d, args.planner)
+    command = shlex.join(["nbvs", "benchmark", args.protocol] + (["--quick"] if args.quick else [])
+                         + (["--seeds", *map(str, args.seeds)] if args.seeds else [])
+                         + [a for o in args.only for a in ("--only", o)]
+                         + [a for p in args.planner for a in ("--planner", p)]
+                         + (["--jobs", str(args.jobs)] if args.jobs else []) + ["--executor", args.executor]
+                         + ["--out", out] + (["--records", args.records] if args.records else []))
+    ex = make_executor("local" if args.table_only else args.executor, args.jobs, args.address)
+    try:
+        res = run_experiment(d, out, quick=args.quick, seeds=args.seeds, executor=ex, retry_failed=args.retry_failed,
+                             command=command, table_only=args.table_only, records=args.records,
+                             only=_only(args.only))
+    finally:
+        ex.close()
+    print(write_benchmark_table(args.protocol, Path(res["dir"])))
+    if res["failed"]:
+        print(f"nbvs: {len(res['failed'])} runs failed ({', '.join(res['failed'])}); their errors are in "
+              "runs/<run>.failed.json, `--retry-failed` reruns them", file=sys.stderr)
+        raise SystemExit(1)
+
+
 def _cmd_config_reference(args) -> None:
     from ..config.reference import write_reference
     print(write_reference(Path(args.out)))
@@ -179,6 +214,30 @@ def main(argv=None) -> int:
                    help="run records (small files to keep in git): restore the runs recorded in "
                         "DIR/NAME/ that OUT lacks before running, record every finished run there")
     e.set_defaults(func=_cmd_experiment)
+    k = sub.add_parser("benchmark", help="judge planners by a protocol (the robot, the view sphere) in one table",
+                       description="nbvs benchmark PROTOCOL runs a protocol's planners, objects and seeds (as "
+                                   "nbvs experiment runs an experiment: the local pool or Ray, records, --quick) "
+                                   "into OUT/PROTOCOL/ and prints one table: AUC, coverage, of the ceiling, of "
+                                   "the greedy oracle, Chamfer, F-score at 5 mm, distance, collisions, time per "
+                                   "decision (OUT/PROTOCOL/benchmark.md and .json).")
+    k.add_argument("protocol", nargs="?", metavar="PROTOCOL", help="robot or view_sphere (see --list)")
+    k.add_argument("--list", action="store_true", help="list the protocols: runs and cost")
+    k.add_argument("--planner", action="append", default=[], metavar="LABEL=MODULE:CLASS",
+                   help="one more planner: a plug-in (repeatable), e.g. --planner mine=my_planner:Planner")
+    k.add_argument("--quick", action="store_true", help="the protocol's small version (minutes)")
+    k.add_argument("--seeds", nargs="+", type=int, default=None, help="replace the protocol's seeds")
+    k.add_argument("--only", action="append", default=[], metavar="FACTOR=LABEL[,LABEL]",
+                   help="run only these levels (the table covers every finished run), e.g. --only condition=open")
+    k.add_argument("--jobs", type=int, default=None, help="runs at a time (default: the number of cores)")
+    k.add_argument("--executor", choices=["local", "ray"], default="local",
+                   help="local processes (default) or Ray tasks (a cluster with --address)")
+    k.add_argument("--address", default=None, help="--executor ray: a running Ray cluster (default: a local one)")
+    k.add_argument("--out", default=None, help="benchmarks folder (default: results/benchmarks)")
+    k.add_argument("--retry-failed", action="store_true", help="rerun the runs that failed before")
+    k.add_argument("--table-only", action="store_true", help="run nothing: the table of the runs finished so far")
+    k.add_argument("--records", default=None, metavar="DIR",
+                   help="run records: restore DIR/PROTOCOL/ first, record every finished run there")
+    k.set_defaults(func=_cmd_benchmark)
     c = sub.add_parser("config-reference", help="write the configuration reference (docs/configuration.md)")
     c.add_argument("--out", default="docs/configuration.md", help="the markdown file (default: docs/configuration.md)")
     c.set_defaults(func=_cmd_config_reference)

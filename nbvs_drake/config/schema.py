@@ -24,7 +24,8 @@ OBJECT_KINDS = {"teapot": dict(size=0.40, up="z"), "bunny": dict(size=0.467, up=
                 "dragon": dict(size=0.511, up="y"), "mesh": dict(size=0.40, up="z"),
                 "chair": dict(size=0.90, up="z"), "suitcase": dict(size=0.90, up="z"),
                 "humanoid": dict(size=0.58, up="z"), "cup": dict(size=0.24, up="z"),
-                "crate": dict(size=0.30, up="z"), "stool": dict(size=0.40, up="z"), "lamp": dict(size=0.36, up="z")}
+                "crate": dict(size=0.30, up="z"), "stool": dict(size=0.40, up="z"), "lamp": dict(size=0.36, up="z"),
+                "mug": dict(size=0.24, up="z"), "stack": dict(size=0.32, up="z"), "arch": dict(size=0.40, up="z")}
 #: what the object stands on
 SUPPORTS = ("table", "box", "floor")
 #: the known obstacles beside the table or support

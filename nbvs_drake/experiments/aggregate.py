@@ -97,7 +97,10 @@ def derived(run: dict) -> dict:
     # the registration and the map update of each sensing scan, and of the localisation frames
     reg_s = sum((sc_.get("register_s") or 0.0) + (sc_.get("update_s") or 0.0)
                 + sum(f.get("register_s") or 0.0 for f in sc_.get("frames") or []) for sc_ in scans_recs)
+    curve = [c for c in (s.get("coverage_by_scan") or []) if c is not None]
     return {
+        # the area under the coverage-against-views curve, normalised: the mean coverage after each scan
+        "coverage_auc": float(np.mean(curve)) if curve else None,
         "plans": len(plans),
         "views_evaluated": views,
         # the vertices of each executed path in its search (a steering path: its 2 ends), and its controls

@@ -65,6 +65,10 @@ from ..errors import NbvsError
 DEFINITIONS_DIR = Path(__file__).resolve().parent / "definitions"
 
 
+#: what runs a definition's runs (`runner:`; RunSpec.runner)
+RUNNERS = ("mission", "view_sphere")
+
+
 class ExperimentError(NbvsError):
     """A malformed experiment definition or an impossible request."""
 
@@ -77,10 +81,16 @@ class RunSpec:
     scenario: str  # scenario name (diagrams/<name>.yaml) or path
     seed: int
     overrides: list
+    #: what runs it: "mission" (`nbvs reconstruct`) or "view_sphere" (the view-sphere protocol,
+    #: nbvs_drake.gym.sphere.run_view_sphere); a definition's `runner:`
+    runner: str = "mission"
 
     def key(self) -> dict:
         """What makes the run what it is (compared with a finished run's run.json)."""
-        return {"scenario": self.scenario, "seed": self.seed, "overrides": list(self.overrides)}
+        k = {"scenario": self.scenario, "seed": self.seed, "overrides": list(self.overrides)}
+        if self.runner != "mission":
+            k["runner"] = self.runner
+        return k
 
     def to_json(self) -> dict:
         return dc.asdict(self)
@@ -147,6 +157,7 @@ def check_definition(d: dict) -> dict:
     def need(cond, msg):
         if not cond:
             raise ExperimentError(f"experiment {name}: {msg}")
+    need(d.get("runner", "mission") in RUNNERS, f"runner must be one of {', '.join(RUNNERS)}, not {d.get('runner')!r}")
     factors = d.get("factors") or []
     need(isinstance(factors, list), "factors must be a list")
     seen = set()
@@ -313,7 +324,7 @@ def expand(r: dict) -> list[RunSpec]:
         level_seeds = next((lv["seeds"] for lv in combo.values() if lv.get("seeds")), None)
         for seed in level_seeds or r["seeds"]:
             runs.append(RunSpec(f"{cell_id(_labels(combo))}_s{seed}", _labels(combo), str(scenario), int(seed),
-                                overrides))
+                                overrides, r.get("runner") or "mission"))
     ids = [x.run_id for x in runs]
     if len(set(ids)) != len(ids):
         raise ExperimentError(f"experiment {r['name']}: two runs share a folder name; make the level labels distinct")

@@ -25,12 +25,13 @@ def _fmt_s(s) -> str:
     return f"{s / 3600:.1f} h"
 
 
-def listing() -> str:
-    """One paragraph per built-in experiment: its paper, table/figure, number of runs (full
-    and quick) and the measured cost per run."""
+def listing(defs: list | None = None) -> str:
+    """One paragraph per built-in experiment (or per definition of `defs`: the benchmark's
+    protocols): its paper, table/figure, number of runs (full and quick) and the measured cost
+    per run."""
     lines = []
-    for name in definition_names():
-        d = load_definition(name)
+    for d in defs if defs is not None else [load_definition(n) for n in definition_names()]:
+        name = d["name"]
         full, quick = len(expand(resolve(d))), len(expand(resolve(d, quick=True)))
         cost = d.get("cost") or {}
         q, f = cost.get("quick_run_s"), cost.get("full_run_s")

@@ -66,7 +66,12 @@ def execute_run(spec: dict, out: Path, threads: int) -> dict:
     import numba
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     t0 = time.perf_counter()
-    summary = reconstruct_run(spec["scenario"], Path(out), spec["seed"], spec["overrides"])
+    if spec.get("runner", "mission") == "view_sphere":
+        from ..config import load_scenario
+        from ..gym.sphere import run_view_sphere
+        summary = run_view_sphere(load_scenario(spec["scenario"], seed=spec["seed"], settings=spec["overrides"]), out)
+    else:
+        summary = reconstruct_run(spec["scenario"], Path(out), spec["seed"], spec["overrides"])
     if not (Path(out) / "summary.json").is_file():
         raise RuntimeError(f"the run returned but wrote no summary.json in {out}")
     from .aggregate import git_commit
@@ -634,7 +639,10 @@ def run_experiment(defn: dict, out_root, *, quick: bool = False, seeds=None, job
 
 def _run_key(run: dict) -> dict:
     """What identifies the run in a run.json, as RunSpec.key()."""
-    return {"scenario": run.get("scenario"), "seed": run.get("seed"), "overrides": run.get("overrides")}
+    k = {"scenario": run.get("scenario"), "seed": run.get("seed"), "overrides": run.get("overrides")}
+    if run.get("runner", "mission") != "mission":
+        k["runner"] = run["runner"]
+    return k
 
 
 def _same_settings(rec: dict, spec: RunSpec) -> bool:

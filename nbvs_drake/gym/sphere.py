@@ -143,16 +143,17 @@ class ViewSphereEnv(gym.Env):
         from ..perception.evaluation import coverage
         return float(coverage(self.gt, points, (0.003,))[0])
 
+    def exact_points(self, view: int) -> np.ndarray:
+        """The noise-free returns (N, 3) of a view, world frame."""
+        z = self.exact_depth(view).ravel()
+        ok = np.isfinite(z)
+        X = self.poses[view]
+        return (self._rays[ok] / self._rays[ok, 2:3] * z[ok, None]) @ X[:3, :3].T + X[:3, 3]
+
     def ceiling(self) -> float:
         """The coverage of all 33 views together, noise-free (computed once)."""
         if self._ceiling is None:
-            pts = []
-            for v in range(N_VIEWS):
-                z = self.exact_depth(v).ravel()
-                ok = np.isfinite(z)
-                X = self.poses[v]
-                pts.append((self._rays[ok] / self._rays[ok, 2:3] * z[ok, None]) @ X[:3, :3].T + X[:3, 3])
-            self._ceiling = self._coverage(np.concatenate(pts))
+            self._ceiling = self._coverage(np.concatenate([self.exact_points(v) for v in range(N_VIEWS)]))
         return self._ceiling
 
     # ---- the Gymnasium API ------------------------------------------------------------------
@@ -198,3 +199,102 @@ class ViewSphereEnv(gym.Env):
             info.update(auc=float(np.mean(self.curve)), ceiling=self.ceiling(), collisions=0,
                         curve=list(self.curve))
         return obs, float(reward), done, False, info
+
+
+# ---- the view-sphere protocol's planners (nbvs benchmark view_sphere) ----------------------
+
+class SpherePlanner:
+    """A next-best view among the sphere's unvisited views, chosen as the scenario's planner
+    chooses: planner.strategy Oracle: the view whose true returns cover the most uncovered
+    ground-truth samples (3 mm); RandomViews: a random one; the others: the view evaluator's
+    information term of planner.metric (this project's "coverage", the papers' "sur") on the
+    map, the best one (the first among equals)."""
+
+    def __init__(self, env: ViewSphereEnv):
+        from ..config import variant_name
+        self.env, self.sc = env, env.sc
+        self.kind = {"Oracle": "oracle", "RandomViews": "random"}.get(variant_name(self.sc.planner.strategy), "metric")
+        if variant_name(self.sc.planner.strategy) == "Plugin":
+            from ..errors import ScenarioError
+            raise ScenarioError("the view sphere runs the built-in planners (a plug-in plans robot states): "
+                                "use nbvs_drake/ViewSphere-v0 with the plug-in's own policy")
+        if self.kind == "metric":
+            from ..planning.views import ViewEvaluator
+            from ..world.robot import RobotKinematics
+            self.evaluator = ViewEvaluator(RobotKinematics(self.sc.robot.urdf), self.sc)
+
+    def choose(self, seed: int, step: int) -> int:
+        env = self.env
+        todo = np.flatnonzero(env.visited == 0)
+        if self.kind == "random":
+            return int(np.random.default_rng([seed, 47, step]).choice(todo))
+        if self.kind == "oracle":
+            from scipy.spatial import cKDTree
+
+            from ..planning.oracle import COVER_RADIUS, newly_covered
+            pts = env.omap.object_points
+            if len(pts):
+                d, _ = cKDTree(np.asarray(pts, float)).query(env.gt, distance_upper_bound=COVER_RADIUS * 1.0001)
+                uncovered = np.flatnonzero(~(d <= COVER_RADIUS))
+            else:
+                uncovered = np.arange(len(env.gt))
+            gains = [len(newly_covered(env.exact_points(v), env.gt, uncovered)) for v in todo]
+            return int(todo[int(np.argmax(gains))])
+        omap = env.omap
+        met = self.evaluator.evaluate_poses(omap, np.stack([env.poses[v] for v in todo]))
+        info = self.evaluator.information(omap, None, met, self.sc.planner.metric, max(omap.unknown_count(), 1))
+        return int(todo[int(np.argmax(info))])
+
+
+def run_view_sphere(sc, out, n_views: int = 9) -> dict:
+    """One episode of the view-sphere protocol with the scenario's planner (`SpherePlanner`),
+    seeded by the scenario's seed, written as a run: scenario.yaml, iterations.jsonl (one line
+    per view) and summary.json (coverage and its curve, coverage_auc, the ceiling over the 33
+    views, distance along the sphere, no collisions, the point model's metrics)."""
+    import json
+    import time
+    from pathlib import Path
+
+    from pydrake.common.yaml import yaml_dump_typed
+
+    from ..config.load import with_resolved_sensor
+    from ..files import write_atomic
+    from ..perception.reconstruction import point_metrics
+    t0 = time.perf_counter()
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scenario.yaml").write_text(yaml_dump_typed(with_resolved_sensor(sc)))
+    env = ViewSphereEnv(sc, n_views=n_views, include_depth=False)
+    planner = SpherePlanner(env)
+    _, info = env.reset(seed=sc.seed)
+    rows = [{"iteration": 1, "view": info["view"], "coverage": info["coverage"], "plan": {"plan_s": 0.0}}]
+    done = False
+    plan_s = []
+    while not done:
+        t = time.perf_counter()
+        view = planner.choose(sc.seed, len(rows))
+        plan_s.append(time.perf_counter() - t)
+        _, _, done, _, info = env.step(view)
+        rows.append({"iteration": len(rows) + 1, "view": view, "coverage": info["coverage"],
+                     "plan": {"status": "ok", "plan_s": plan_s[-1], "factors": {"rho": arc_length(
+                         env.dirs[rows[-1]["view"]], env.dirs[view], env.radius)}}})
+    (out / "iterations.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    from ..perception.evaluation import coverage
+    cov5 = coverage(env.gt, env.omap.object_points, (0.005,))[0]
+    ceiling = info["ceiling"]
+    summary = {
+        "scenario": sc.name, "seed": sc.seed, "planner": sc.planner.strategy_word() if planner.kind != "metric"
+        else f"{sc.planner.strategy_word()}:{sc.planner.metric}", "protocol": "view_sphere",
+        "coverage": info["coverage"], "coverage_5mm": cov5, "coverage_by_scan": info["curve"],
+        "coverage_auc": info["auc"], "coverage_ceiling": ceiling,
+        "coverage_of_ceiling": round(info["coverage"] / ceiling, 6) if ceiling else None,
+        "scans": len(rows), "collisions": 0, "executed_trajectories": len(rows) - 1, "collision_rate": 0.0,
+        "stop_reason": "max_scans", "distance": info["distance"], "sphere_radius_m": env.radius,
+        "reconstruction": {"points": point_metrics(env.omap.object_points, env.mesh.vertices, env.mesh.triangles,
+                                                   env.gt, sc.mapper.voxel_size)},
+        "plan_s_per_iteration": float(np.mean(plan_s)) if plan_s else 0.0,
+        "wall_s": time.perf_counter() - t0,
+    }
+    env.close()
+    write_atomic(out / "summary.json", json.dumps(summary, indent=2))
+    return summary

@@ -139,6 +139,39 @@ def lamp() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return join(parts)
 
 
+def mug() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A mug (a benchmark object, nbvs benchmark): a hollow like the cup, 0.18 m across and
+    0.22 m tall with 8 mm walls, and a loop handle 16 mm thick whose hole is seen through from
+    the side."""
+    parts = [cylinder((0.0, 0.0), 0.0, 0.012, 0.09, sides=24)] + _ring_wall(0.09, 0.012, 0.22, 0.008, 24)
+    for z0, z1 in ((0.05, 0.066), (0.164, 0.18)):  # the handle's arms, out from the wall
+        parts.append(box((0.085, -0.008, z0), (0.15, 0.008, z1)))
+    parts.append(box((0.134, -0.008, 0.066), (0.15, 0.008, 0.164)))  # its upright
+    return join(parts)
+
+
+def stack() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A stack of primitives (a benchmark object): a box 0.20 x 0.14 x 0.12 m, a ball 0.14 m
+    across resting on it, and a rod 50 mm thick leaning against them (self-occlusion and a
+    slanted thin part)."""
+    parts = [box((-0.10, -0.07, 0.0), (0.10, 0.07, 0.12)), sphere((0.03, 0.0, 0.19), 0.07, rings=10, sectors=20)]
+    a0, a1 = np.array([-0.16, 0.0, 0.0]), np.array([-0.02, 0.0, 0.30])  # the rod, in short boxes
+    n = 10
+    for i in range(n):
+        p0, p1 = a0 + (a1 - a0) * i / n, a0 + (a1 - a0) * (i + 1) / n
+        c = 0.5 * (p0 + p1)
+        parts.append(box((c[0] - 0.025, -0.025, p0[2]), (c[0] + 0.025, 0.025, p1[2])))
+    return join(parts)
+
+
+def arch() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An arch (a benchmark object): two pillars 20 mm thick, 0.26 m apart and 0.30 m tall,
+    under a lintel 0.36 m long, with a thin plate 6 mm thick standing on the lintel (thin
+    parts, and a gap seen through)."""
+    return join([box((-0.15, -0.03, 0.0), (-0.13, 0.03, 0.30)), box((0.13, -0.03, 0.0), (0.15, 0.03, 0.30)),
+                 box((-0.18, -0.04, 0.30), (0.18, 0.04, 0.33)), box((-0.08, -0.003, 0.33), (0.08, 0.003, 0.40))])
+
+
 #: kind -> builder
 SHAPES = {"chair": office_chair, "suitcase": suitcase, "humanoid": humanoid, "cup": cup, "crate": crate,
-          "stool": stool, "lamp": lamp}
+          "stool": stool, "lamp": lamp, "mug": mug, "stack": stack, "arch": arch}

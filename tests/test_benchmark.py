@@ -22,7 +22,8 @@ def test_the_protocols_load_and_the_robot_matrix_is_the_one_asked():
     assert by_condition["room"] == {"nbvs_room", "paper_eu", "oracle"}
     assert len(runs) == (5 + 3 + 3) * 10 * 3
     # each condition's scenario is what it says: the noise on, the chairs there
-    cell = {(r.levels["condition"], r.levels["planner"]): r for r in runs if r.levels["object"] == "cup" and r.seed == 1}
+    cell = {(r.levels["condition"], r.levels["planner"]): r for r in runs
+            if r.levels["object"] == "cup" and r.seed == 1}
     room = cell[("room", "nbvs_room")].resolve()
     assert room.scene.clutter == "chairs" and room.noise.sigma_w == pytest.approx(0.28) and room.preset == "nbvs_room"
     assert cell[("open", "nbvs")].resolve().noise.sigma_w == 0
@@ -69,7 +70,8 @@ def test_nbvs_benchmark_runs_the_view_sphere_and_prints_its_table(tmp_path, caps
           "planner=nbvs,oracle", "--only", "object=teapot", "--records", str(tmp_path / "records")])
     out = capsys.readouterr().out
     assert "| nbvs | 1 |" in out and "| oracle | 1 |" in out
-    rows = {r["planner"]: r for r in json.loads((tmp_path / "view_sphere_quick" / "benchmark.json").read_text())["rows"]}
+    table = json.loads((tmp_path / "view_sphere_quick" / "benchmark.json").read_text())
+    rows = {r["planner"]: r for r in table["rows"]}
     assert rows["oracle"]["of_oracle"] == pytest.approx(1.0) and 0.5 < rows["nbvs"]["of_oracle"] <= 1.05
     assert rows["nbvs"]["collided"] == 0 and rows["nbvs"]["auc"] < rows["nbvs"]["coverage"]
     # the records rebuild the table on a fresh folder; re-running a record gives its coverage

@@ -76,7 +76,8 @@ def test_a_broken_plugin_is_one_line_naming_it(tmp_path, monkeypatch, entry, opt
     (tmp_path / "bad_plugins.py").write_text(BAD)
     monkeypatch.syspath_prepend(str(tmp_path))
     with pytest.raises(ScenarioError) as e:
-        reconstruct(None, tmp_path / "run", overrides=QUICK + [f'planner.strategy=!Plugin {{entry: "{entry}"{options}}}'])
+        reconstruct(None, tmp_path / "run",
+                    overrides=QUICK + [f'planner.strategy=!Plugin {{entry: "{entry}"{options}}}'])
     assert message in str(e.value) and "\n" not in str(e.value)
 
 

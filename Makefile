@@ -21,7 +21,7 @@ test: setup
 	$(VENV)/bin/python -m pytest -q -m "not slow" --durations=20
 
 lint: setup
-	$(VENV)/bin/ruff check nbvs_drake tests scripts benchmarks
+	$(VENV)/bin/ruff check nbvs_drake tests scripts benchmarks docs/examples
 
 test-slow: setup
 	$(VENV)/bin/python -m pytest -q -m slow

@@ -333,3 +333,26 @@ def test_a_noisy_wall_registers_flat_in_a_room():
     P = r.correction.apply_points(scan)
     a, b = np.linalg.lstsq(np.c_[np.ones(len(P)), P[:, 1]], P[:, 0], rcond=None)[0]
     assert abs(b) < 0.005 and abs(a + 2.4) < 0.005, (a, b)
+
+
+def test_a_wall_alone_does_not_fix_a_low_fitness_pose_two_walls_do():
+    """min_far_spread: a relocalisation view that matched little of the model was applied
+    because most of its far points lay on their planes, but one box face fixes nothing along
+    itself (the suitcase's seed 2: 8 cm and 0.09 rad off). far_spread is the weaker horizontal
+    direction's share of the far inliers' normals: 0 for one wall, 0.5 for two alike."""
+    from nbvs_drake.perception.registration import PlanarIcp, RegistrationConfig, RegistrationModel
+    g = np.linspace(-1.0, 1.0, 41)
+    yy, zz = np.meshgrid(g, np.linspace(0.2, 1.4, 13))
+    wall_x = np.c_[np.full(yy.size, 2.0), yy.ravel(), zz.ravel()]  # the plane x = 2, facing -x
+    wall_y = np.c_[yy.ravel(), np.full(yy.size, 2.0), zz.ravel()]
+    cfg = RegistrationConfig(near=(-0.5, -0.5, 0.5, 0.5))
+
+    def spread(*walls):
+        P = np.concatenate([w for w, _ in walls])
+        N = np.concatenate([np.tile(n, (len(w), 1)) for w, n in walls])
+        icp = PlanarIcp(P, RegistrationModel(P, N), np.eye(3) * 1e-4, cfg)
+        return icp.far_spread(np.zeros(3)), icp.far_spread(np.array([0.0, 0.08, 0.0]))
+    one = spread((wall_x, [-1.0, 0.0, 0.0]))
+    two = spread((wall_x, [-1.0, 0.0, 0.0]), (wall_y, [0.0, -1.0, 0.0]))
+    assert one[0] < 1e-6 and one[1] < 1e-6  # slid 8 cm along the wall: still on it, still free
+    assert two[0] == pytest.approx(0.5, abs=0.01) and two[0] >= cfg.min_far_spread > one[0]

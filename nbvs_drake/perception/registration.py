@@ -101,6 +101,11 @@ class RegistrationConfig:
     #: planes (within 2 far_sigma); a view of mostly new surface of the object matches little of
     #: the model, while the walls fix the pose
     min_far_fitness: float = 0.5
+    #: ... and when those far points' planes fix the pose in the plane (`far_spread`, the
+    #: weaker horizontal direction's share of their normals): a single wall or box face fits a
+    #: pose slid along it (the suitcase's seed 2: a relocalisation at fitness 0.07 applied 8 cm
+    #: and 0.09 rad off, and the run collided later)
+    min_far_spread: float = 0.1
 
     @property
     def oriented(self) -> bool:
@@ -581,6 +586,22 @@ class PlanarIcp:
         x, q, n, _ = self._far_matches(np.asarray(xi, float))
         return float(np.count_nonzero(np.abs(np.sum(n * (x - q), axis=1)) < 2.0 * self.cfg.far_sigma)) / len(self.far)
 
+    def far_spread(self, xi) -> float:
+        """How well the far points on their planes at correction xi fix the pose in the plane:
+        the least eigenvalue of the mean outer product of their normals' horizontal parts, over
+        its trace (0: every such plane faces one way, a wall alone, which leaves the pose free
+        along it; 0.5: two perpendicular walls seen alike). 0 without far points."""
+        if not len(self.far):
+            return 0.0
+        x, q, n, _ = self._far_matches(np.asarray(xi, float))
+        on = np.abs(np.sum(n * (x - q), axis=1)) < 2.0 * self.cfg.far_sigma
+        h = n[on, :2]
+        if len(h) < 10:
+            return 0.0
+        M = h.T @ h / len(h)
+        tr = float(np.trace(M))
+        return float(np.linalg.eigvalsh(M)[0]) / tr if tr > 1e-12 else 0.0
+
     def evaluate(self, xi):
         """(MAP cost, fitness, rmse): the cost caps residuals at `cfg.residual_cap` (or the
         last distance) and sums them over the points on structure that plane motion can
@@ -691,7 +712,8 @@ def register_scan(scan_pts: np.ndarray, model: RegistrationModel, prior_cov: np.
         if far and cost <= best_cost * (1 + cfg.ambiguity_cost):
             return IcpResult(Correction(), fitness, rmse, False, "ambiguous", n_model, n_scan, sig)
     corr = Correction(float(xi[0]), float(xi[1]), float(xi[2]))
-    if fitness < cfg.min_fitness and not (cfg.near is not None and prob.far_fitness(xi) >= cfg.min_far_fitness):
+    if fitness < cfg.min_fitness and not (cfg.near is not None and prob.far_fitness(xi) >= cfg.min_far_fitness
+                                          and prob.far_spread(xi) >= cfg.min_far_spread):
         return IcpResult(Correction(), fitness, rmse, False, "low_fitness", n_model, n_scan, sig)
     if rmse > cfg.max_rmse:
         return IcpResult(Correction(), fitness, rmse, False, "high_rmse", n_model, n_scan, sig)

@@ -6,7 +6,9 @@ and reward (`perception.evaluation.coverage`, 3 mm) with the robot's mission; th
 flies, so there are no collisions and no motion noise.
 
 - The views: 33 points of a Fibonacci lattice on the sphere of `radius` about the middle of
-  W_box, each camera looking at the middle, image rows along the lattice's up. The object is
+  W_box, each camera looking at the middle, its image's up as near the world's up as the
+  view allows. The object floats: the map keeps every return in W_box, the underside's too
+  (the mission strips a band above its support), while the ground truth is the mission's. The object is
   ray cast alone (Open3D), as the protocol's floating object: no table, no room.
 - Action: `Discrete(33)`, the next view (a view taken before gains nothing).
 - Observation (`Dict`): `voxels`, `depth` (as Reconstruct-v0), `view` (the current view's
@@ -28,7 +30,8 @@ N_VIEWS = 33
 
 
 def sphere_views(n: int = N_VIEWS) -> np.ndarray:
-    """n unit directions of a Fibonacci lattice on the sphere (the same every time)."""
+    """n unit directions of a Fibonacci lattice on the sphere (uniform in area; the same every
+    time)."""
     i = np.arange(n) + 0.5
     z = 1.0 - 2.0 * i / n
     phi = np.pi * (1.0 + 5 ** 0.5) * i
@@ -136,7 +139,9 @@ class ViewSphereEnv(gym.Env):
         miss = np.isinf(flat)
         P = (back[hit] * flat[hit, None]) @ X[:3, :3].T + X[:3, 3]
         F = (self._rays[miss] * self._z_range[1]) @ X[:3, :3].T + X[:3, 3]
-        self.omap, _ = self.omap.integrate(X[:3, 3], P, self.sc.mapper.table_clearance, free_rays=F)
+        # the object floats: no support's returns to strip above W_box's floor (the mission's
+        # table_clearance), so every return in W_box marks the map, its underside's too
+        self.omap, _ = self.omap.integrate(X[:3, 3], P, 0.0, free_rays=F)
         return np.where(np.isfinite(z), z, 0.0).astype(np.float32)
 
     def _coverage(self, points: np.ndarray) -> float:

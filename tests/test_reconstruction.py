@@ -12,6 +12,7 @@ from nbvs_drake.perception.reconstruction import depth_from_points, mesh_metrics
 from nbvs_drake.systems.messages import RegisteredScan
 from nbvs_drake.systems.surface_fusion import SurfaceFusion
 from nbvs_drake.world.objects import ObjectMesh, sample_surface
+from nbvs_drake.world.pose import look_at
 from nbvs_drake.world.sensor import intrinsics
 
 R = 0.1  #: the test sphere's radius (m)
@@ -81,7 +82,7 @@ def test_surface_fusion_meshes_the_registered_scans(sphere):
     rays = _camera_rays(intr)
 
     def scan(k, eye, integrate=True):
-        X = _look_at(eye, c)
+        X = look_at(eye, c)
         P = _ray_sphere(X, rays, c, R)
         assert len(P) > 500
         np.testing.assert_array_less(np.abs(depth_from_points(P, X, *intr)[depth_from_points(P, X, *intr) > 0]), 5)
@@ -101,18 +102,6 @@ def test_surface_fusion_meshes_the_registered_scans(sphere):
     assert Vm[:, 0].max() > c[0] + 0.08 and Vm[:, 0].min() < c[0] - 0.08  # both sides now
     assert np.percentile(np.abs(np.linalg.norm(Vm - c, axis=1) - R), 95) < 0.003
     assert Vm[:, 2].min() >= sc.scene.table_height + sc.mapper.table_clearance - 1e-9
-
-
-def _look_at(eye, target):
-    """X_WC of a camera at eye looking at target (+z forward, +y down)."""
-    z = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(z, [0, 0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    X = np.eye(4)
-    X[:3, :3] = np.c_[x, y, z]
-    X[:3, 3] = eye
-    return X
 
 
 def _camera_rays(intr):
@@ -157,7 +146,7 @@ def test_surface_fusion_leaves_out_a_scan_its_registration_misplaced(sphere):
         rays = _camera_rays(intr)
         for k in range(5):
             a = 2 * np.pi * k / 5
-            X = _look_at(c + [0.8 * np.cos(a), 0.8 * np.sin(a), 0.3], c)
+            X = look_at(c + [0.8 * np.cos(a), 0.8 * np.sin(a), 0.3], c)
             P = _ray_sphere(X, rays, c, R)
             if misplaced and k == 3:
                 X, P = E @ X, P + E[:3, 3]
@@ -173,9 +162,9 @@ def test_surface_fusion_leaves_out_a_scan_its_registration_misplaced(sphere):
     assert np.percentile(d, 95) < 0.003
     assert consistent_scans(scans, intr)[0] == [0, 1, 2, 4]
     # the point model's cleaning: the misplaced scan's returns are its own, the others' are not
-    P3 = _ray_sphere(_look_at(c + [0.8 * np.cos(6 * np.pi / 5), 0.8 * np.sin(6 * np.pi / 5), 0.3], c),
+    P3 = _ray_sphere(look_at(c + [0.8 * np.cos(6 * np.pi / 5), 0.8 * np.sin(6 * np.pi / 5), 0.3], c),
                      _camera_rays(intr), c, R) + E[:3, 3]
-    P0 = _ray_sphere(_look_at(c + [0.8, 0.0, 0.3], c), _camera_rays(intr), c, R)
+    P0 = _ray_sphere(look_at(c + [0.8, 0.0, 0.3], c), _camera_rays(intr), c, R)
     assert owned_by(P3, [scans[3]], intr).mean() > 0.95 and owned_by(P0, [scans[3]], intr).mean() < 0.02
     left_out, d, _, _ = run(misplaced=False)
     assert left_out == {} and np.percentile(d, 95) < 0.003

@@ -26,6 +26,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from ..world.pose import look_at
+
 N_VIEWS = 33
 
 
@@ -37,21 +39,6 @@ def sphere_views(n: int = N_VIEWS) -> np.ndarray:
     phi = np.pi * (1.0 + 5 ** 0.5) * i
     r = np.sqrt(1.0 - z * z)
     return np.c_[r * np.cos(phi), r * np.sin(phi), z]
-
-
-def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """X_WC of a camera at eye looking at target (+z forward, +x right, +y down), its image's
-    up as close to the world's +z as the view allows (+x world where it looks straight up or down)."""
-    f = np.asarray(target, float) - np.asarray(eye, float)
-    f /= np.linalg.norm(f)
-    up = np.array([0.0, 0.0, 1.0]) if abs(f[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
-    x = np.cross(f, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(f, x)
-    X = np.eye(4)
-    X[:3, :3] = np.c_[x, y, f]
-    X[:3, 3] = eye
-    return X
 
 
 def arc_length(a: np.ndarray, b: np.ndarray, radius: float) -> float:

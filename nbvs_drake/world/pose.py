@@ -71,3 +71,18 @@ def state_error(q_true: np.ndarray, q_est: np.ndarray) -> tuple[float, float]:
     """(planar position error in m, absolute heading error in rad) of a state estimate."""
     d = np.asarray(q_true, float) - np.asarray(q_est, float)
     return float(np.hypot(d[0], d[1])), float(abs(wrap_angle(d[2])))
+
+
+def look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """X_WC of a camera at eye looking at target (+z forward, +x right, +y down), its image's
+    up as close to the world's +z as the view allows (+x world where it looks straight up or down)."""
+    f = np.asarray(target, float) - np.asarray(eye, float)
+    f /= np.linalg.norm(f)
+    up = np.array([0.0, 0.0, 1.0]) if abs(f[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(f, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(f, x)
+    X = np.eye(4)
+    X[:3, :3] = np.c_[x, y, f]
+    X[:3, 3] = eye
+    return X

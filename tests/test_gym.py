@@ -45,6 +45,9 @@ def test_the_same_seed_gives_the_same_episode_and_another_candidate_another(env)
     c = _episode(env, 5, lambda obs: 0)
     assert a[0] == b[0] and a[1][-1]["summary"]["coverage"] == b[1][-1]["summary"]["coverage"]
     assert a[1][-1]["summary"]["distance"] != c[1][-1]["summary"]["distance"]
+    # each episode is a run folder; only the last one is kept (keep_runs False)
+    runs = list(env.unwrapped.out_dir.glob("episode_*"))
+    assert len(runs) == 1 and (runs[0] / "summary.json").is_file()
 
 
 def test_the_observation_holds_the_map_the_depth_image_the_belief_and_the_candidates(env):

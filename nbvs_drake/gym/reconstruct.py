@@ -55,9 +55,10 @@ class _Mission:
     """The mission's process: runs one episode after another as `run_mission` with an
     AgentPlanner attached, and makes the observations there."""
 
-    def __init__(self, sc, n_candidates: int, include_depth: bool, out_dir: Path):
+    def __init__(self, sc, n_candidates: int, include_depth: bool, out_dir: Path, keep_runs: bool = False):
         from ..world.sensor import intrinsics
         self.sc, self.n_candidates, self.include_depth, self.out_dir = sc, n_candidates, include_depth, out_dir
+        self.keep_runs = keep_runs
         self.intr = intrinsics(sc.sensor)
         self.md = self.sim = None
         self.coverage = 0.0
@@ -71,6 +72,9 @@ class _Mission:
         out = self.out_dir / f"episode_{episode:04d}_seed{seed}"
         if out.exists():
             shutil.rmtree(out)
+        if not self.keep_runs:  # only the last episode's run folder is kept
+            for old in self.out_dir.glob("episode_*"):
+                shutil.rmtree(old, ignore_errors=True)
         self.coverage = 0.0
         channel = Channel(conn, self.observe)
 
@@ -104,12 +108,12 @@ class _Mission:
         return obs, {"reachable": True, "scan": scan, "reward": reward, "coverage": cov}
 
 
-def worker_main(conn, sc, n_candidates: int, include_depth: bool, out_dir: str):
+def worker_main(conn, sc, n_candidates: int, include_depth: bool, out_dir: str, keep_runs: bool = False):
     """The mission process's loop: ("reset", seed, episode) runs an episode, answering with
     ("decision", observation, info) at each decision and ("done", summary, info) at its end
     (("error", text) if it fails); ("abort",) during an episode ends it (("aborted",));
     ("close",) ends the process."""
-    mission = _Mission(sc, n_candidates, include_depth, Path(out_dir))
+    mission = _Mission(sc, n_candidates, include_depth, Path(out_dir), keep_runs)
     while True:
         try:
             msg = conn.recv()
@@ -165,13 +169,14 @@ class ReconstructEnv(gym.Env):
     """See the module's docstring. `scenario`: a built-in scenario's name, a YAML path or a
     Scenario; `settings`: "section.field=value" strings as `nbvs reconstruct --set`;
     `out_dir`: where each episode's run is written (None: a temporary folder, removed at
-    close); `include_depth` False leaves the depth image out of the observation. The mission
+    close; `keep_runs` False: only the last episode's folder is kept there); `include_depth`
+    False leaves the depth image out of the observation. The mission
     runs in a process of its own, started with the environment (its imports take a few seconds)."""
 
     metadata = {"render_modes": []}
 
     def __init__(self, scenario="default", settings=(), action: str = "candidate", n_candidates: int = 16,
-                 out_dir=None, include_depth: bool = True):
+                 out_dir=None, include_depth: bool = True, keep_runs: bool = False):
         from ..app.api import _resolve_scenario
         from ..errors import ScenarioError
         from ..mapping.occupancy import OccupancyMap
@@ -197,7 +202,7 @@ class ReconstructEnv(gym.Env):
         self.action_space = (spaces.Discrete(self.n_candidates) if action == "candidate"
                              else spaces.Box(lo, hi, (8,), np.float64))
         self._conn, self._proc = _start_worker()
-        self._conn.send(("init", self.sc, self.n_candidates, include_depth, str(self.out_dir)))
+        self._conn.send(("init", self.sc, self.n_candidates, include_depth, str(self.out_dir), keep_runs))
         self._running = False
         self._last_obs = None
         self._episode = 0

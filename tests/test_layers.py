@@ -19,7 +19,7 @@ LAYERS = [
     ("systems", ["systems"]),
     ("mission", ["app.diagram", "perception.scanning", "perception", "outputs.diagnostics", "outputs.wiring",
                  "app.mission", "app.bench", "app.warmup", "app"]),
-    ("api", ["app.api", "experiments"]),
+    ("api", ["app.api", "experiments", "gym"]),
     ("cli", ["app.cli", ""]),  # "": the package itself (nbvs_drake/__init__.py)
 ]
 

@@ -80,6 +80,11 @@ def test_nbvs_benchmark_runs_the_view_sphere_and_prints_its_table(tmp_path, caps
     again = {r["planner"]: r for r in json.loads((tmp_path / "fresh" / "view_sphere_quick" / "benchmark.json")
                                                  .read_text())["rows"]}
     assert again["nbvs"]["coverage"] == rows["nbvs"]["coverage"]
+    # the robot protocol's run of the same scenario is a mission, not this record
+    main(["benchmark", "robot", "--seeds", "1", "--out", str(tmp_path / "fresh"), "--table-only", "--only",
+          "condition=open", "--only", "planner=nbvs", "--only", "object=teapot", "--records",
+          str(tmp_path / "records")])
+    assert not list((tmp_path / "fresh" / "robot" / "runs").glob("*/summary.json"))
     from nbvs_drake.config import load_scenario
     from nbvs_drake.gym.sphere import run_view_sphere
     run_dir = tmp_path / "view_sphere_quick" / "runs" / "nbvs-teapot_s1"

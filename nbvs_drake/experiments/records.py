@@ -105,6 +105,10 @@ def record_scenario(rec: dict):
         return load_scenario(f)
 
 
+def _index_key(settings: str, runner: str) -> str:
+    return settings if runner == "mission" else f"{runner}:{settings}"
+
+
 class RecordIndex:
     """The records of a records folder by the settings of the runs they hold (`settings_key`
     of each record's scenario.yaml), read once on the first lookup: a run that one experiment
@@ -121,16 +125,20 @@ class RecordIndex:
         out: dict[str, list[Path]] = {}
         for path in sorted(self.root.glob(f"*/*{SUFFIX}")):
             try:
-                sc = record_scenario(read_record(path))
-                if sc is not None:
-                    out.setdefault(settings_key(sc), []).append(path)
+                rec = read_record(path)
+                sc = record_scenario(rec)
+                if sc is not None:  # a view-sphere run is not the mission of the same scenario
+                    runner = (rec.get("run") or {}).get("runner") or "mission"
+                    out.setdefault(_index_key(settings_key(sc), runner), []).append(path)
             except NbvsError as e:  # ExperimentError, ScenarioError: not a lookup's business
                 self.unreadable.append(f"{path}: {e}")
         return out
 
-    def find(self, sc, exclude: Path | None = None) -> Path | None:
-        """A record (not under `exclude`) of a run whose settings equal those of scenario sc."""
+    def find(self, sc, exclude: Path | None = None, runner: str = "mission") -> Path | None:
+        """A record (not under `exclude`) of a run of `runner` whose settings equal those of
+        scenario sc."""
         if self._by_key is None:
             self._by_key = self._build()
-        hits = [p for p in self._by_key.get(settings_key(sc), []) if exclude is None or p.parent != Path(exclude)]
+        hits = [p for p in self._by_key.get(_index_key(settings_key(sc), runner), [])
+                if exclude is None or p.parent != Path(exclude)]
         return hits[0] if hits else None

@@ -691,7 +691,7 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
         if shared:
             # another experiment's record, or this one's under an older run name (a factor
             # added since renames the runs: the clutter runs before planner.motion_planner)
-            src = index.find(spec.resolve())
+            src = index.find(spec.resolve(), runner=spec.runner)
             if src is None:
                 continue
         rec = read_record(src)

@@ -96,7 +96,7 @@ def table_rows(runs: list[dict]) -> list[dict]:
     # the oracle's mean coverage per (condition, object)
     oracle = {}
     for r in runs:
-        if str(r["levels"].get("planner", "")).startswith("oracle"):  # oracle, oracle_noise, oracle_room
+        if r["levels"].get("planner") == "oracle":
             oracle.setdefault((cond(r), r["levels"].get("object")), []).append(_num(r["summary"].get("coverage")))
     oracle = {k: _mean(v) for k, v in oracle.items()}
     cells = {}
@@ -121,8 +121,7 @@ def table_rows(runs: list[dict]) -> list[dict]:
         row["of_oracle"] = _mean(shares)
         rows.append(row)
     order = {"open": 0, "noise": 1, "room": 2, "": 0}
-    return sorted(rows, key=lambda r: (order.get(r["condition"], 9), str(r["planner"]).startswith("oracle"),
-                                       r["planner"]))
+    return sorted(rows, key=lambda r: (order.get(r["condition"], 9), r["planner"] == "oracle", r["planner"]))
 
 
 def table_markdown(name: str, rows: list[dict]) -> str:

@@ -32,14 +32,11 @@ def protocol_names() -> list[str]:
 
 def load_protocol(name: str) -> dict:
     """A protocol by name, checked as an experiment definition."""
-    import yaml
+    from .definition import load_definition
     f = PROTOCOLS_DIR / f"{name}.yaml"
     if not f.is_file():
         raise ExperimentError(f"unknown benchmark protocol {name!r}; known: {', '.join(protocol_names())}")
-    d = yaml.safe_load(f.read_text())
-    d["_path"] = str(f)
-    check_definition(d)
-    return d
+    return load_definition(f)
 
 
 def with_plugins(d: dict, planners: list[str]) -> dict:

@@ -55,7 +55,7 @@ class _Mission:
     """The mission's process: runs one episode after another as `run_mission` with an
     AgentPlanner attached, and makes the observations there."""
 
-    def __init__(self, sc, n_candidates: int, include_depth: bool, out_dir: Path, keep_runs: bool = False):
+    def __init__(self, sc, n_candidates: int, include_depth: bool, out_dir: Path, keep_runs: bool):
         from ..world.sensor import intrinsics
         self.sc, self.n_candidates, self.include_depth, self.out_dir = sc, n_candidates, include_depth, out_dir
         self.keep_runs = keep_runs
@@ -108,7 +108,7 @@ class _Mission:
         return obs, {"reachable": True, "scan": scan, "reward": reward, "coverage": cov}
 
 
-def worker_main(conn, sc, n_candidates: int, include_depth: bool, out_dir: str, keep_runs: bool = False):
+def worker_main(conn, sc, n_candidates: int, include_depth: bool, out_dir: str, keep_runs: bool):
     """The mission process's loop: ("reset", seed, episode) runs an episode, answering with
     ("decision", observation, info) at each decision and ("done", summary, info) at its end
     (("error", text) if it fails); ("abort",) during an episode ends it (("aborted",));

@@ -78,8 +78,6 @@ def reach(planner, request: PlanRequest, q_goal: np.ndarray) -> PlanResult | Non
     its steering paths and detours) from the believed state, with the scenario planner's own
     per-plan obstacles; its utility and information term from the planner's view evaluator where
     it has one. None: the state is not free, or no path reaches it."""
-    from ..planning.motion_planner import reached_goal
-    from ..world.motion import path_length
     motion, obstacles = getattr(planner, "motion", None), getattr(planner, "obstacles", None)
     if motion is None or obstacles is None:
         raise ValueError(f"{type(planner).__name__} has no motion planner: a robot state cannot be reached")
@@ -94,24 +92,21 @@ def reach(planner, request: PlanRequest, q_goal: np.ndarray) -> PlanResult | Non
     found = motion.connect_many(request.q_start, q[None], paths, request.rng)[0]
     if found is None:
         return None
-    kind, controls, states = found
-    rho = path_length(states, sc.planner.weights)
-    dist = 1.0 / (1.0 + rho) if sc.planner.use_distance else 1.0
-    info, un_total = 1.0, max(omap.unknown_count(), 1)
-    factors = {"pos": 1.0, "reg": 1.0, "rho": float(rho), "dist": float(dist), "un_total": int(un_total),
-               "purpose": "view", "chosen_by": "agent"}
     evaluator = getattr(planner, "evaluator", None)
-    if evaluator is not None:
-        from ..mapping import view_metrics as K
-        met = evaluator.evaluate(omap, q[None])
-        info = float(evaluator.information(omap, q[None], met, sc.planner.metric, un_total)[0])
-        factors.update(info=info, metric=sc.planner.metric, un_o=int(met[0, K.M_UN_O]), oc_o=int(met[0, K.M_OC_O]))
-        if hasattr(evaluator, "near_range_unknown"):
-            factors["un_near"] = evaluator.near_range_unknown(omap, q)
-    g = info * dist
-    factors["du"] = g
-    return PlanResult("ok", reached_goal(sc, q, states), controls, states, kind, float(g), factors,
-                      path_nodes=found.nodes)
+    if evaluator is not None:  # the factors random sampling reports, with no registration filter
+        from ..planning.baselines import view_result
+        res = view_result(sc, evaluator, omap, q, found, max(omap.unknown_count(), 1), None)
+    else:
+        from ..planning.motion_planner import reached_goal
+        from ..world.motion import path_length
+        kind, controls, states = found
+        rho = path_length(states, sc.planner.weights)
+        dist = 1.0 / (1.0 + rho) if sc.planner.use_distance else 1.0
+        res = PlanResult("ok", reached_goal(sc, q, states), controls, states, kind, float(dist),
+                         {"pos": 1.0, "reg": 1.0, "info": 1.0, "rho": float(rho), "dist": float(dist),
+                          "du": float(dist)}, path_nodes=found.nodes)
+    res.factors.update(purpose="view", chosen_by="agent")
+    return res
 
 
 class AgentPlanner:

@@ -221,16 +221,9 @@ class SpherePlanner:
         if self.kind == "random":
             return int(np.random.default_rng([seed, 47, step]).choice(todo))
         if self.kind == "oracle":
-            from scipy.spatial import cKDTree
-
-            from ..planning.oracle import COVER_RADIUS, newly_covered
-            pts = env.omap.object_points
-            if len(pts):
-                d, _ = cKDTree(np.asarray(pts, float)).query(env.gt, distance_upper_bound=COVER_RADIUS * 1.0001)
-                uncovered = np.flatnonzero(~(d <= COVER_RADIUS))
-            else:
-                uncovered = np.arange(len(env.gt))
-            gains = [len(newly_covered(env.exact_points(v), env.gt, uncovered)) for v in todo]
+            from ..planning.oracle import newly_covered, uncovered
+            todo_gt = uncovered(env.gt, env.omap.object_points)
+            gains = [len(newly_covered(env.exact_points(v), env.gt, todo_gt)) for v in todo]
             return int(todo[int(np.argmax(gains))])
         omap = env.omap
         met = self.evaluator.evaluate_poses(omap, np.stack([env.poses[v] for v in todo]))

@@ -102,6 +102,17 @@ def newly_covered(hits: np.ndarray, gt: np.ndarray, candidates: np.ndarray, radi
     return candidates[np.isfinite(d) & (d <= radius)]
 
 
+def uncovered(gt: np.ndarray, object_points: np.ndarray) -> np.ndarray:
+    """Indices of the ground-truth samples gt not yet within COVER_RADIUS (3 mm) of the model's
+    points."""
+    model = np.asarray(object_points, float)
+    if not len(model):
+        return np.arange(len(gt))
+    from scipy.spatial import cKDTree
+    d, _ = cKDTree(model).query(gt, distance_upper_bound=COVER_RADIUS * 1.0001)
+    return np.flatnonzero(~(np.isfinite(d) & (d <= COVER_RADIUS)))
+
+
 def reference_samples(sc: Scenario, mesh: ObjectMesh, n: int = CEILING_SAMPLES) -> np.ndarray:
     """A fixed draw of ground-truth samples (not the run's seed), without the band at the
     table that no scan keeps (as `objects.ground_truth_points`)."""
@@ -201,12 +212,7 @@ class OraclePlanner:
 
     def uncovered(self, object_points: np.ndarray) -> np.ndarray:
         """Indices of the ground-truth samples not yet within 3 mm of the model's points."""
-        model = np.asarray(object_points, float)
-        if not len(model):
-            return np.arange(len(self.gt))
-        from scipy.spatial import cKDTree
-        d, _ = cKDTree(model).query(self.gt, distance_upper_bound=COVER_RADIUS * 1.0001)
-        return np.flatnonzero(~(np.isfinite(d) & (d <= COVER_RADIUS)))
+        return uncovered(self.gt, object_points)
 
     def _gain(self, scene: TruthScene, q: np.ndarray, todo: np.ndarray) -> np.ndarray:
         return np.array([len(newly_covered(scene.object_hits(X), self.gt, todo)) for X in self.kin.camera_poses(q)])

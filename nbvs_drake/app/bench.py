@@ -156,6 +156,7 @@ def bench_visibility_sensor(sensor: str = "kinect", trials: int = 8, per_trial: 
         "scene": f"default (teapot) after 1..{n_maps} scans, 2 cm map", "sensor": f"{rs.preset} {rs.width}x{rs.height}",
         "model_binning": rs.model_binning, "pixels_per_ray": new.stride, "coarse_pixels_per_ray": new.coarse_stride,
         "second_look_pixels_per_ray": new.recheck_stride if new.recheck is not None else None,
+        "refine_views": new.refine_views,
         "rays_per_view": int(len(new.dirs)), "baseline_rays_per_view": int(len(base.dirs)),
         "views_per_trial": per_trial, "trials": trials,
         **_agreement_json(agree, rho, top),

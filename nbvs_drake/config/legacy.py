@@ -266,6 +266,7 @@ def from_old(o: OldScenario) -> S.Scenario:
         sensor.model_binning = 1
         sensor.coarse_binning = 1
         sensor.recheck_binning = 0
+        sensor.refine_multiple = 1
     noise = S.NoiseConfig(sigma_v=o.noise.sigma_v, sigma_w=o.noise.sigma_w, sigma_arm=list(o.noise.sigma_arm),
                           beta=o.noise.beta)
     strategy = {"random_sampling": lambda: S.RandomSampling(),

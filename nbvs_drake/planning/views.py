@@ -42,7 +42,7 @@ class ViewEvaluator:
         #: blocks of sensor.coarse_binning pixels
         coarse = sc.planner.coarse_stride() * rs.coarse_binning
         self.coarse_stride = coarse if coarse > self.stride else 0
-        self.refine_views = sc.planner.refine_views()
+        self.refine_views = sc.planner.refine_views(rs.refine_multiple)
         self.coarse = ray_directions(sc.sensor, self.coarse_stride) if self.coarse_stride else None
         #: the coarse pass's second look (sensor.recheck_binning; None: none): its rays, at
         #: coarse_stride blocks of that many pixels, for the views whose coarse rays came near

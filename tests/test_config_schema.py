@@ -188,3 +188,26 @@ def test_a_runs_scenario_names_its_sensors_values_and_compares_equal_to_its_pres
     assert settings_of(again) == settings_of(sc)
     other = load_scenario(settings=["sensor.preset=kinect", "sensor.recheck_binning=0"])
     assert settings_of(other) != settings_of(sc)
+
+
+def test_a_runs_scenario_written_before_a_field_keeps_the_schemas_default_not_its_presets():
+    """A run's scenario.yaml is written whole over its preset: a field it does not name was
+    added since, and takes the schema's default (the behaviour before the field existed), not
+    a preset's later value; a partial scenario over the same preset still gets the preset's.
+    A sensor written without refine_multiple keeps 1, what every sensor did before it."""
+    import yaml
+    from pydrake.common.yaml import yaml_dump_typed
+
+    from nbvs_drake.config.load import with_resolved_sensor
+    sc = load_scenario(settings=["sensor.preset=kinect"])  # preset nbvs: arcs and free goal headings on
+    assert sc.planner.steering.arcs and sc.planner.motion_planner.free_goal_heading
+    doc = yaml.safe_load(yaml_dump_typed(with_resolved_sensor(sc)).replace("!Roadmap", ""))
+    del doc["planner"]["steering"]["arcs"]  # as if written before the field existed
+    del doc["sensor"]["refine_multiple"]
+    text = yaml.safe_dump(doc).replace("motion_planner:", "motion_planner: !Roadmap")
+    old = scenario_from_text(text)
+    assert old.preset == "nbvs" and old.planner.motion_planner.free_goal_heading  # named: as written
+    assert old.planner.steering.arcs is False  # not named: the schema's default
+    assert old.sensor.refine_multiple == 1 and sc.sensor.resolved().refine_multiple == 2
+    partial = scenario_from_text("preset: nbvs\nplanner: {steering: {detours: true}}\n")
+    assert partial.planner.steering.arcs is True and partial.sensor.refine_multiple is None

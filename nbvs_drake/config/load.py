@@ -55,6 +55,10 @@ def preset_scenario(name: str, _seen=()) -> Scenario:
     return sc
 
 
+#: the sections a run's scenario.yaml writes: a document with all of them is written whole
+WHOLE_SECTIONS = ("robot", "scene", "sensor", "noise", "mapper", "localisation", "planner", "mission")
+
+
 def scenario_from_text(text: str, what: str = "", preset: str | None = None) -> Scenario:
     """A scenario YAML document: today's schema (over its `preset:`, or over `preset` when
     given), or the old flat one."""
@@ -68,8 +72,14 @@ def scenario_from_text(text: str, what: str = "", preset: str | None = None) -> 
             raise
         except Exception as e:  # noqa: BLE001
             raise ScenarioError(f"malformed scenario {what} (old schema): {' '.join(str(e).split())}") from None
-    preset = preset or doc.get("preset")
-    start = preset_scenario(str(preset)) if preset else Scenario()
+    named = doc.get("preset")
+    preset = preset or named
+    # a scenario written whole (a run's scenario.yaml) over its own preset names every value
+    # the preset gave it: a field it does not name was added since, and keeps the default the
+    # schema gives it, the behaviour before the field existed (a preset's later "on" would
+    # change what a record re-runs)
+    whole = preset == named and all(k in doc for k in WHOLE_SECTIONS)
+    start = preset_scenario(str(preset)) if preset and not whole else Scenario()
     sc = _typed(text, start, what)
     sc.preset = str(preset) if preset else None
     if isinstance(doc.get("sensor"), dict) and "model_binning" in doc["sensor"]:

@@ -15,7 +15,7 @@ import dataclasses as dc
 
 import numpy as np
 
-from ..planning.interface import PlanRequest, PlanResult
+from ..planning.interface import PlanRequest, PlanResult, distance_factor
 
 
 class Aborted(Exception):
@@ -101,7 +101,7 @@ def reach(planner, request: PlanRequest, q_goal: np.ndarray) -> PlanResult | Non
         from ..world.motion import path_length
         kind, controls, states = found
         rho = path_length(states, sc.planner.weights)
-        dist = 1.0 / (1.0 + rho) if sc.planner.use_distance else 1.0
+        dist = distance_factor(rho, sc.planner.use_distance)
         res = PlanResult("ok", reached_goal(sc, q, states), controls, states, kind, float(dist),
                          {"pos": 1.0, "reg": 1.0, "info": 1.0, "rho": float(rho), "dist": float(dist),
                           "du": float(dist)}, path_nodes=found.nodes)

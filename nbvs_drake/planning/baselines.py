@@ -31,7 +31,7 @@ from ..mapping.occupancy import OccupancyMap
 from ..world.motion import path_length, wrap_angle
 from ..world.robot import RobotKinematics
 from .candidates import StateSampler, free_candidates
-from .interface import PlanRequest, PlanResult
+from .interface import PlanRequest, PlanResult, distance_factor
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, reached_goal
 from .utility import select_best
 from .view_sampling import camera_ik
@@ -49,7 +49,7 @@ def view_result(sc: Scenario, evaluator: ViewEvaluator, omap: OccupancyMap, q: n
     overlap = float(registration_overlap(met)[0])
     reg = 1.0 if overlap_h is None or overlap > overlap_h else 0.0
     rho = path_length(states, p.weights)
-    dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
+    dist = distance_factor(rho, p.use_distance)
     du = 1.0 * reg * info * dist
     return PlanResult("ok", reached_goal(sc, q, states), controls, states, kind, float(du), {
         "pos": 1.0, "reg": reg, "info": info, "metric": p.metric, "dist": float(dist), "rho": float(rho),

@@ -79,3 +79,11 @@ class Planner(Protocol):
 
     def plan(self, request: PlanRequest) -> PlanResult:
         ...
+
+
+def distance_factor(rho, use_distance: bool = True):
+    """The utility's travel factor dist(x) = 1 / (1 + rho) of a path of length rho (eq. 8),
+    a number or an array (Vasquez-Gomez et al. 2017 eq. 4); 1 with planner.use_distance false."""
+    if use_distance:
+        return 1.0 / (1.0 + rho)
+    return np.ones_like(rho, dtype=float) if np.ndim(rho) else 1.0

@@ -19,7 +19,7 @@ from ..world.motion import rollout, steer_together
 from . import neighbours, steer_kernels, tree_growth
 from .candidates import StateSampler
 from .certificate import COLLIDING, FREE, UNKNOWN
-from .interface import PlanRequest, PlanResult
+from .interface import PlanRequest, PlanResult, distance_factor
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, undecided_free
 from .rrt import ITERATIONS_PER_VERTEX, Tree, extend_batch
 from .utility import select_best
@@ -113,7 +113,7 @@ class ORTPlanner:
         q = tree.q[1: tree.n]
         un_total = max(omap.unknown_count(), 1)
         rho = tree.cost[1: tree.n]
-        dist = 1.0 / (1.0 + rho) if p.use_distance else np.ones_like(rho)
+        dist = distance_factor(rho, p.use_distance)
         if p.metric == "seed001":  # its own ray casting: no coarse pass
             met, order = self.evaluator.evaluate(omap, q), None
         else:  # the vertices ranked by g (coarse to fine with planner.coarse_stride())

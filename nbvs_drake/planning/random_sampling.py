@@ -15,7 +15,7 @@ from ..config import Scenario
 from ..mapping import view_metrics as K
 from ..world.motion import path_length
 from .candidates import free_candidates
-from .interface import PlanRequest, PlanResult
+from .interface import PlanRequest, PlanResult, distance_factor
 from .motion_planner import MotionPlanner, ObstacleModel, PlanningObstacles, reached_goal
 from .utility import select_best
 from .views import ViewEvaluator, ranking_score, registration_overlap
@@ -102,7 +102,7 @@ class RandomSamplingPlanner:
                         continue
                     kind, controls, states = found
                     rho = path_length(states, p.weights)
-                    dist = 1.0 / (1.0 + rho) if p.use_distance else 1.0
+                    dist = distance_factor(rho, p.use_distance)
                     du = 1.0 * 1.0 * info[i] * dist  # pos = reg = 1 for the survivors
                     reachable.append(PlanResult("ok", reached_goal(self.sc, cand[i], states), controls, states, kind,
                                                 float(du), {

@@ -50,7 +50,7 @@ def _agreement(base, new, maps, sets, score_of, k_top: int):
     """(seconds of base, seconds of new, best view the same, Spearman's rho, share of the exact
     top k_top in new's) over the candidate sets, set k on map k mod len(maps): `base` evaluates
     every view (the exact ranking), `new` ranks them as the planner does (evaluate_ranked)."""
-    warm = getattr(new, "refine_views", 0) + 40  # more views than it refines: its coarse pass runs too
+    warm = new.refine_views + 40  # more views than it refines: its coarse pass runs too
     for m in maps:  # compile / load the caches, and the per-map memos (sample density, near surface)
         base.evaluate(m, sets[0][:2]), new.evaluate_ranked(m, sets[0][:warm], score_of(m))
     t_base = t_new = 0.0

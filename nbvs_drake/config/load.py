@@ -82,16 +82,16 @@ def scenario_from_text(text: str, what: str = "", preset: str | None = None) -> 
     start = preset_scenario(str(preset)) if preset and not whole else Scenario()
     sc = _typed(text, start, what)
     sc.preset = str(preset) if preset else None
-    if isinstance(doc.get("sensor"), dict) and "model_binning" in doc["sensor"]:
-        keep_old_sensor_model(doc, sc)  # a run's scenario.yaml (`with_resolved_sensor`)
+    if whole:
+        _keep_old_sensor_model(doc, sc)
     return sc
 
 
-def keep_old_sensor_model(doc: dict, sc: Scenario) -> None:
-    """A scenario written before sensor.refine_multiple existed (its document `doc` does not
-    name it: a run's scenario.yaml, which names every other sensor field, or a run record's)
-    keeps what every sensor did then: top_k views scored again at the fine model
-    (refine_multiple 1; the Kinect preset's since: 2)."""
+def _keep_old_sensor_model(doc: dict, sc: Scenario) -> None:
+    """A scenario written whole before sensor.refine_multiple existed (a run's scenario.yaml
+    or record that does not name it; the sensor's own presets are a second layer the schema's
+    defaults do not reach) keeps what every sensor did then: top_k views scored again at the
+    fine model (refine_multiple 1; the Kinect preset's since: 2)."""
     sensor = doc.get("sensor")
     if not (isinstance(sensor, dict) and "refine_multiple" in sensor):
         sc.sensor.refine_multiple = 1

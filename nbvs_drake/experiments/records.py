@@ -96,17 +96,13 @@ def record_scenario(rec: dict):
     import tempfile
 
     from ..config import load_scenario
-    from ..config.load import _raw, keep_old_sensor_model
     text = rec.get("scenario_yaml")
     if text is None:
         return None
     with tempfile.TemporaryDirectory() as tmp:
         f = Path(tmp) / "scenario.yaml"
         f.write_text(text)
-        sc = load_scenario(f)
-    # a record made before a sensor field existed keeps what it was made with
-    keep_old_sensor_model(_raw(text, "run record"), sc)
-    return sc
+        return load_scenario(f)
 
 
 def _index_key(settings: str, runner: str) -> str:

@@ -419,3 +419,38 @@ def test_surface_factor_ranks_views_as_vuv(planner, first_scan_map):
     assert sur.max() > 0
     fig = information(met, "fig", un_total)
     assert not np.allclose(fig / fig.max(), sur / sur.max())
+
+
+def test_the_travel_factor_chooses_only_among_views_of_about_the_best_gain():
+    """planner.gain_tolerance: g = gain * dist(x) decides only between views whose gain is at
+    least (1 - tolerance) x the best's; 1 is eq. 4 as written, 0 the best gain."""
+    from nbvs_drake.planning.interface import PlanResult
+    from nbvs_drake.planning.utility import choose
+
+    def view(gain, rho):
+        d = 1.0 / (1.0 + rho)
+        return PlanResult("ok", utility=gain * d, factors={"info": gain, "dist": d, "rho": rho})
+
+    near, mid, far = view(0.003, 1.0), view(0.0085, 6.0), view(0.010, 20.0)
+    views = [near, mid, far]
+    assert choose(views, 1.0) is near  # 0.0015 against 0.0012: eq. 4 takes the near, poor view
+    assert choose(views, 0.25) is mid  # within 25 % of the best gain, the shorter path
+    assert choose(views, 0.1) is far  # only the best gain is within 10 %
+    assert choose(views, 0.0) is far
+    assert choose([], 0.5) is None
+
+
+def test_the_planner_picks_within_its_gain_tolerance(kin, first_scan_map):
+    """With planner.gain_tolerance, the chosen view's gain is within the tolerance of the best
+    gain among the feasible candidates the plan scored, and its utility is the highest of
+    those."""
+    sc, omap = first_scan_map
+    sc = copy.deepcopy(sc)
+    sc.planner.n_candidates = 1500
+    sc.planner.gain_tolerance = 0.2
+    res = make_planner(sc, kin).plan(_request(omap, sc.robot.start))
+    assert res.status == "ok" and len(res.alternatives) >= 5
+    gains = np.array([r.factors["info"] for r in res.alternatives])
+    assert res.factors["info"] >= 0.8 * gains.max() - 1e-15
+    within = [r for r, g in zip(res.alternatives, gains) if g >= 0.8 * gains.max()]
+    assert res.utility == max(r.utility for r in within)

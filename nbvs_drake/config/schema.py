@@ -731,6 +731,10 @@ class PlannerConfig:
     #: the distance weights of eq. 8 (x, y, theta, q1..q5)
     weights: list[float] = dc.field(default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     use_distance: bool = True  #: the dist(x) factor of g
+    #: the dist(x) factor chooses only among the views whose gain (g without it) is at least
+    #: (1 - gain_tolerance) x the best reachable view's: 1, among all (eq. 4 as written); 0,
+    #: the best gain, the nearest of equal ones
+    gain_tolerance: float = 1.0
     evaluator: Union[Exact, Hrt] = dc.field(default_factory=Exact)  #: how a view's rays are cast through the map
     #: the utility the candidates with a path are ranked by
     utility: Union[Deterministic, Expected] = dc.field(default_factory=Deterministic)
@@ -817,6 +821,8 @@ class PlannerConfig:
         require(finite(self.overlap_h) and 0 <= self.overlap_h <= 1,
                 f"{at}.overlap_h (h) must be in [0, 1], got {self.overlap_h}")
         require(self.top_k > 0, f"{at}.top_k must be > 0, got {self.top_k}")
+        require(finite(self.gain_tolerance) and 0 <= self.gain_tolerance <= 1,
+                f"{at}.gain_tolerance must be in [0, 1], got {self.gain_tolerance}")
         require(len(self.weights) == 8 and all(w >= 0 for w in self.weights),
                 f"{at}.weights must be 8 numbers >= 0, got {self.weights}")
         self.evaluator.check(self.top_k, f"{at}.evaluator")

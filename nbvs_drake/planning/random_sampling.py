@@ -112,7 +112,7 @@ class RandomSamplingPlanner:
                         "un_total": int(un_total), "du": float(du)}, path_nodes=found.nodes))
                 yield reachable, len(batch)
 
-        best = select_best(batches(), self.utility, request, obstacles, un_total, stages, times)
+        best = select_best(batches(), self.utility, request, obstacles, un_total, stages, times, p.gain_tolerance)
         stages["top_k"] = min(p.top_k, len(ranked))
         if best is None:
             return PlanResult("no_feasible" if stages["with_path"] else "no_path", stages=stages, times=times)

@@ -245,10 +245,7 @@ class ExpectedUtilityScore:
                 pending[id(r)] = eu
         feasible = [r for r in reachable if r.factors["eu"]["feasible"]]
         while pending:
-            best = None
-            for r in feasible:  # the first of the highest, as select_best takes it
-                if best is None or r.utility > best.utility:
-                    best = r
+            best = choose(feasible, self.sc.planner.gain_tolerance)  # as select_best takes it
             eu = pending.pop(id(best), None)
             if eu is None:
                 break
@@ -266,12 +263,30 @@ def make_utility(sc: Scenario, evaluator: ViewEvaluator, motion: MotionPlanner, 
     return DeterministicUtility()
 
 
+def choose(results: list[PlanResult], gain_tolerance: float = 1.0) -> PlanResult | None:
+    """The candidate of highest utility g (the first of the highest) among those whose gain
+    g / dist(x) is at least (1 - gain_tolerance) x the best gain of `results`
+    (planner.gain_tolerance): the travel factor decides only between views of about the best
+    gain. gain_tolerance 1: among all, g as eq. 4 writes it; 0: the best gain (the nearest of
+    equal gains). None when `results` is empty."""
+    if not results:
+        return None
+    gains = [r.utility / r.factors.get("dist", 1.0) for r in results]
+    floor = (1.0 - gain_tolerance) * max(gains)
+    best = None
+    for r, g in zip(results, gains):
+        if g >= floor and (best is None or r.utility > best.utility):
+            best = r
+    return best
+
+
 def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, request: PlanRequest,
-                obstacles: ObstacleModel, un_total: int, stages: dict, times: dict) -> PlanResult | None:
+                obstacles: ObstacleModel, un_total: int, stages: dict, times: dict,
+                gain_tolerance: float = 1.0) -> PlanResult | None:
     """The ranking loop (Vasquez-Gomez et al. 2017 §7.6 steps 7-8): `batches` yields, batch
     after batch of the ranking (planner.top_k each), the candidates that have a path and how
     many were tried; each batch is scored by the utility; the first batch with a feasible
-    candidate gives the best one. Fills stages (motion_tried, with_path, eu_feasible) and
+    candidate gives the best one (`choose`, with planner.gain_tolerance). Fills stages (motion_tried, with_path, eu_feasible) and
     times (motion_s, expected_utility_s); the best result's `candidates` lists every
     feasible candidate scored on the way."""
     t = time.perf_counter()
@@ -290,9 +305,7 @@ def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, reques
         t_utility += time.perf_counter() - tu
         kept += [(r.q_goal, r.utility) for r in feasible]
         alternatives += feasible
-        for r in feasible:
-            if best is None or r.utility > best.utility:
-                best = r
+        best = choose(feasible, gain_tolerance)
         if best is not None:
             break
     eu = utility.name == "eu"

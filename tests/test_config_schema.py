@@ -69,7 +69,8 @@ def test_the_old_flat_schema_round_trips(name):
     """Every built-in scenario the old flat schema can say, written in it and migrated back, is
     itself (the real-robot scenes' supports, the Kinect's faults, the registration's search and
     legs that end after turns only came after it: an old record's search is the one of before,
-    None, and its legs end after drives)."""
+    None, and its legs end after drives; so did planner.gain_tolerance: an old record's travel
+    factor is eq. 4's, among all views)."""
     if name.startswith("real_robot"):
         pytest.skip("the real-robot scenes postdate the old flat schema")
     sc = load_scenario(name)
@@ -78,7 +79,9 @@ def test_the_old_flat_schema_round_trips(name):
     assert back.localisation.search is None
     vv = back.localisation.verified_views
     assert vv is None or vv.legs is None or vv.legs.after_drives
-    assert _same(sc, back, ignore=("localisation.search", "localisation.verified_views.legs.after_drives")) == {}
+    assert back.planner.gain_tolerance == 1.0
+    assert _same(sc, back, ignore=("localisation.search", "localisation.verified_views.legs.after_drives",
+                                   "planner.gain_tolerance")) == {}
 
 
 def test_an_old_setting_changes_only_its_own_field():

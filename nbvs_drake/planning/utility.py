@@ -286,9 +286,9 @@ def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, reques
     """The ranking loop (Vasquez-Gomez et al. 2017 §7.6 steps 7-8): `batches` yields, batch
     after batch of the ranking (planner.top_k each), the candidates that have a path and how
     many were tried; each batch is scored by the utility; the first batch with a feasible
-    candidate gives the best one (`choose`, with planner.gain_tolerance). Fills stages (motion_tried, with_path, eu_feasible) and
-    times (motion_s, expected_utility_s); the best result's `candidates` lists every
-    feasible candidate scored on the way."""
+    candidate gives the best one (`choose`, with planner.gain_tolerance). Fills stages
+    (motion_tried, with_path, eu_feasible) and times (motion_s, expected_utility_s); the best
+    result's `candidates` lists every feasible candidate scored on the way."""
     t = time.perf_counter()
     if hasattr(utility, "checks_s"):
         utility.checks_s = 0.0

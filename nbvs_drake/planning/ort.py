@@ -150,8 +150,7 @@ class ORTPlanner:
 
         batches = (([vertex(b) for b in ranked[s:s + p.top_k]], len(ranked[s:s + p.top_k]))
                    for s in range(0, len(ranked), p.top_k))
-        best = select_best(batches, self.utility, request, obstacles, un_total, stages, times,
-                           p.gain_tolerance)
+        best = select_best(batches, self.utility, request, obstacles, un_total, stages, times)
         stages["top_k"] = min(p.top_k, len(ranked))
         times["motion_planning_s"] += times["tree_s"]  # the tree's growth is its path search
         if best is None:

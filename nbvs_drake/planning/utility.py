@@ -34,7 +34,7 @@ class DeterministicUtility:
     name = "du"
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
-              un_total: int) -> tuple[list[PlanResult], int]:
+              un_total: int, gain_tolerance: float = 1.0) -> tuple[list[PlanResult], int]:
         """(the feasible candidates with their utility, how many were feasible)."""
         return reachable, len(reachable)
 
@@ -228,11 +228,12 @@ class ExpectedUtilityScore:
         return lambda s: g * np.minimum(1.0, landmarks_in_view(kin, self.sc, s, marks, solids=solids) / nominal)
 
     def score(self, request: PlanRequest, reachable: list[PlanResult], obstacles: ObstacleModel,
-              un_total: int) -> tuple[list[PlanResult], int]:
+              un_total: int, gain_tolerance: float = 1.0) -> tuple[list[PlanResult], int]:
         """Algorithm 1 for each candidate of a batch. With `coarse_rollouts`, coarse to fine:
         every candidate's rollouts are scored by the coarse pass, then the best candidate's
         again at the full ray stride (the same rollouts), until the best is one scored at full
-        stride: the chosen view's E(x) is exact and above every other estimate."""
+        stride: the chosen view's E(x) is exact and above every other estimate (among the views
+        `choose` keeps with `gain_tolerance`, as select_best chooses)."""
         n_feasible = 0
         coarse = self.coarse_rollouts()
         pending = {}
@@ -245,7 +246,7 @@ class ExpectedUtilityScore:
                 pending[id(r)] = eu
         feasible = [r for r in reachable if r.factors["eu"]["feasible"]]
         while pending:
-            best = choose(feasible, self.sc.planner.gain_tolerance)  # as select_best takes it
+            best = choose(feasible, gain_tolerance)  # as select_best takes it
             eu = pending.pop(id(best), None)
             if eu is None:
                 break
@@ -300,7 +301,7 @@ def select_best(batches: Iterable[tuple[list[PlanResult], int]], utility, reques
         n_tried += tried
         n_path += len(reachable)
         tu = time.perf_counter()
-        feasible, n = utility.score(request, reachable, obstacles, un_total)
+        feasible, n = utility.score(request, reachable, obstacles, un_total, gain_tolerance)
         n_feasible += n
         t_utility += time.perf_counter() - tu
         kept += [(r.q_goal, r.utility) for r in feasible]

@@ -731,9 +731,9 @@ class PlannerConfig:
     #: the distance weights of eq. 8 (x, y, theta, q1..q5)
     weights: list[float] = dc.field(default_factory=lambda: [10.0, 10.0, 0.5, 0.05, 0.05, 0.05, 0.05, 0.05])
     use_distance: bool = True  #: the dist(x) factor of g
-    #: random sampling: the dist(x) factor chooses only among the views whose gain (g without
-    #: it) is at least (1 - gain_tolerance) x the best reachable view's: 1, among all (eq. 4 as
-    #: written); 0, the best gain, the nearest of equal ones (the ORT keeps eq. 4)
+    #: random and view sampling: the dist(x) factor chooses only among the views whose gain (g
+    #: without it) is at least (1 - gain_tolerance) x the best reachable view's: 1, among all
+    #: (eq. 4 as written); 0, the best gain, the nearest of equal ones (the ORT keeps eq. 4)
     gain_tolerance: float = 1.0
     evaluator: Union[Exact, Hrt] = dc.field(default_factory=Exact)  #: how a view's rays are cast through the map
     #: the utility the candidates with a path are ranked by

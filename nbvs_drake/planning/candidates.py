@@ -195,20 +195,39 @@ def _misses_in_plane(q, n, X_PF, axes, X_L5C, bmin, bmax, t_near, t_far, plane_o
     return not (t0 <= t1 and t1 >= t_near - 1e-6 and t0 <= t_far + 1e-6)
 
 
+#: planner.free_candidates: at most this many rounds of planner.n_candidates draws per plan
+MAX_FREE_ROUNDS = 25
+
+
 def free_candidates(generator, obstacles, rng: np.random.Generator, omap: OccupancyMap, stages: dict,
-                    times: dict) -> np.ndarray:
+                    times: dict, want: int = 0) -> np.ndarray:
     """Candidate generation and the position filter (Vasquez-Gomez et al. 2017 §7.6 steps
     1-2): the generator's states (`generate(rng, omap) -> (states, raw samples)`) that are
-    free of the plan's obstacles. Fills stages (sampled, director_ray, position) and times
-    (generate_s, position_s)."""
+    free of the plan's obstacles. want > 0 (planner.free_candidates): further rounds of the
+    generator's draws until at least `want` are free (at most MAX_FREE_ROUNDS rounds): among
+    obstacles most draws collide, and the free views would otherwise be few. Fills stages
+    (sampled, director_ray, position, and rounds when more than one) and times (generate_s,
+    position_s)."""
     import time
-    t = time.perf_counter()
-    cand, raw = generator.generate(rng, omap)
+    kept, raw, drawn, rounds = [], 0, 0, 0
+    t_gen = t_pos = 0.0
+    while True:
+        t = time.perf_counter()
+        cand, n_raw = generator.generate(rng, omap)
+        t_gen += time.perf_counter() - t
+        raw, drawn, rounds = raw + n_raw, drawn + len(cand), rounds + 1
+        t = time.perf_counter()
+        kept.append(cand[obstacles.free(cand)])
+        t_pos += time.perf_counter() - t
+        n_free = sum(len(c) for c in kept)
+        if n_free >= want or rounds >= MAX_FREE_ROUNDS or len(cand) == 0:
+            break
+    cand = np.concatenate(kept) if len(kept) > 1 else kept[0]
     stages["sampled"] = raw
-    stages["director_ray"] = len(cand)
-    times["generate_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    cand = cand[obstacles.free(cand)]
+    stages["director_ray"] = drawn
     stages["position"] = len(cand)
-    times["position_s"] = time.perf_counter() - t
+    if rounds > 1:
+        stages["rounds"] = rounds
+    times["generate_s"] = t_gen
+    times["position_s"] = t_pos
     return cand

@@ -60,7 +60,9 @@ class RandomSamplingPlanner:
         # planner.obstacles.base_clearance: the positions and the paths keep the base clear of the
         # environment; the expected utility's rollouts meet the true obstacles
         paths = obstacles.for_paths()
-        cand = free_candidates(generator, paths, rng, omap, stages, times)
+        # planner.free_candidates: the scenario's generator only (not the arm-only fallback's)
+        want = p.free_candidates if generator is self.generator else 0
+        cand = free_candidates(generator, paths, rng, omap, stages, times, want)
 
         un_total = max(omap.unknown_count(), 1)
 

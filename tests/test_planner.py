@@ -454,3 +454,30 @@ def test_the_planner_picks_within_its_gain_tolerance(kin, first_scan_map):
     assert res.factors["info"] >= 0.8 * gains.max() - 1e-15
     within = [r for r, g in zip(res.alternatives, gains) if g >= 0.8 * gains.max()]
     assert res.utility == max(r.utility for r in within)
+
+
+def test_free_candidates_draw_rounds_until_enough_are_free_among_the_chairs(kin, first_scan_map):
+    """planner.free_candidates: among the chairs few draws are free; further rounds of
+    n_candidates draws gather at least the number asked (each one free by Drake's own check),
+    and 0 keeps the single round, draw for draw."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.planning.candidates import MAX_FREE_ROUNDS, StateSampler, free_candidates
+    from nbvs_drake.planning.collision import CollisionModel
+    from nbvs_drake.planning.motion_planner import PlanningObstacles
+    _, omap = first_scan_map
+    sc = load_scenario("cluttered_room_nbvs", settings=["planner.n_candidates=500"])
+    sampler = StateSampler(sc, kin)
+    paths = PlanningObstacles(sc, kin).for_map(omap).for_paths()
+    one = free_candidates(sampler, paths, np.random.default_rng(3), omap, {}, {})
+    stages = {}
+    again = free_candidates(sampler, paths, np.random.default_rng(3), omap, stages, {}, 0)
+    assert np.array_equal(one, again) and "rounds" not in stages and stages["director_ray"] == 500
+    assert len(one) < 150  # among the chairs most of 500 draws collide
+    want = 3 * len(one) + 1
+    stages = {}
+    more = free_candidates(sampler, paths, np.random.default_rng(3), omap, stages, {}, want)
+    assert len(more) >= want and 1 < stages["rounds"] <= MAX_FREE_ROUNDS
+    assert stages["director_ray"] == 500 * stages["rounds"] and stages["position"] == len(more)
+    assert np.array_equal(more[:len(one)], one)  # the first round is the single round's
+    world = CollisionModel(sc, kin)
+    assert np.all(world.free(more[::17]))

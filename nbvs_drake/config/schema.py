@@ -710,6 +710,9 @@ class Obstacles:
     #: keep the robot's base this far from the environment and the map's obstacles (m; Drake's
     #: padding); the rollouts, recovery paths and executed motion meet the true geometry
     base_clearance: float = 0.0
+    #: keep every other part of the robot (the arm, the camera) this far from the environment
+    #: and the map's obstacles (m), in the positions and paths as base_clearance
+    arm_clearance: float = 0.0
 
 
 @dc.dataclass
@@ -844,6 +847,8 @@ class PlannerConfig:
         require(o.max_boxes >= 1, f"{at}.obstacles.max_boxes must be >= 1, got {o.max_boxes}")
         require(finite(o.base_clearance) and o.base_clearance >= 0,
                 f"{at}.obstacles.base_clearance must be a finite distance >= 0 (m), got {o.base_clearance}")
+        require(finite(o.arm_clearance) and o.arm_clearance >= 0,
+                f"{at}.obstacles.arm_clearance must be a finite distance >= 0 (m), got {o.arm_clearance}")
 
 
 # --------------------------------------------------------------------------------------

@@ -39,7 +39,8 @@ class CollisionModel:
         plant = rdb.plant()
         robot = add_robot(plant, sc.robot.urdf)
         add_environment(plant, sc, object_obj=object_obj, visual=False, obstacle_boxes=obstacle_boxes,
-                        add_wbox_obstacle=object_obj is None and obstacle_boxes is None, floor_drop=base_padding)
+                        add_wbox_obstacle=object_obj is None and obstacle_boxes is None,
+                        floor_drop=padding + base_padding)
         plant.Finalize()
         self.diagram = rdb.Build()
         self.kin = kin

@@ -83,12 +83,14 @@ class PlanningObstacles:
         return self._last
 
     def _padded(self, boxes, scan: int) -> ObstacleModel | None:
-        """planner.obstacles.base_clearance > 0: the same obstacles (the map's `boxes`, or W_box when None)
-        with the base padded by it; else None."""
-        pad = self.sc.planner.obstacles.base_clearance
-        if pad <= 0:
+        """planner.obstacles.base_clearance or arm_clearance > 0: the same obstacles (the map's `boxes`,
+        or W_box when None) with the robot padded by them; else None."""
+        o = self.sc.planner.obstacles
+        if o.base_clearance <= 0 and o.arm_clearance <= 0:
             return None
-        return ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, base_padding=pad), scan)
+        # every robot body keeps arm_clearance, the base the larger of the two
+        return ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, padding=o.arm_clearance,
+                                            base_padding=max(o.base_clearance - o.arm_clearance, 0.0)), scan)
 
 
 def reached_goal(sc: Scenario, goal: np.ndarray, states: np.ndarray) -> np.ndarray:

@@ -481,3 +481,29 @@ def test_free_candidates_draw_rounds_until_enough_are_free_among_the_chairs(kin,
     assert np.array_equal(more[:len(one)], one)  # the first round is the single round's
     world = CollisionModel(sc, kin)
     assert np.all(world.free(more[::17]))
+
+
+def test_arm_clearance_keeps_the_arm_and_camera_off_the_chairs(kin, first_scan_map):
+    """planner.obstacles.arm_clearance: the positions and paths keep every robot body this far
+    from the environment (the base its own base_clearance): the margin only removes states,
+    some near the chairs, and 0 leaves the base-only padding as it was."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.planning.candidates import StateSampler
+    from nbvs_drake.planning.collision import CollisionModel
+    from nbvs_drake.planning.motion_planner import PlanningObstacles
+    _, omap = first_scan_map
+    sc0 = load_scenario("cluttered_room_nbvs")
+    sc3 = load_scenario("cluttered_room_nbvs", settings=["planner.obstacles.arm_clearance=0.03"])
+    q = StateSampler(sc0, kin).sample_states(np.random.default_rng(11), 6000)
+    f0 = PlanningObstacles(sc0, kin).for_map(omap).for_paths().free(q)
+    f3 = PlanningObstacles(sc3, kin).for_map(omap).for_paths().free(q)
+    assert not np.any(f3 & ~f0) and np.count_nonzero(f0 & ~f3) > 0
+    # the states the margin removes: free of the chairs themselves, but some robot body other
+    # than the base comes within 3 cm of them (the base's own 0.15 m already holds in f0)
+    lost = q[f0 & ~f3][:20]
+    assert np.all(CollisionModel(sc0, kin).free(lost))
+    assert not np.any(CollisionModel(sc0, kin, padding=0.03, base_padding=0.12).free(lost))
+    # no arm margin: the base-only padding of before, state for state
+    base_only = CollisionModel(sc0, kin, base_padding=0.15)
+    paths0 = PlanningObstacles(sc0, kin).for_map(omap).for_paths()
+    assert np.array_equal(base_only.free(q[:2000]), paths0.free(q[:2000]))

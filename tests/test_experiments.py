@@ -30,7 +30,7 @@ from nbvs_drake.experiments import (
 )
 
 NAMES = ["hrt", "objects", "ig_vs_du", "samples", "motion_noise", "clutter", "ort_size", "ort_vs_rs", "metrics",
-         "prediction"]
+         "prediction", "clutter_objects"]
 
 #: a definition small enough to run in seconds: the default scene, 2 scans, few candidates
 TINY = """\
@@ -97,6 +97,7 @@ def test_full_sizes_follow_the_papers():
     # nbvs_free_arm3) with EU only
     assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 6 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
+    assert size["clutter_objects"] == 7 * 3  # issue 50: the seven test objects among the chairs, three seeds
     assert size["hrt"] % 4 == 0  # a = 0..3
 
 

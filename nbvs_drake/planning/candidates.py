@@ -209,20 +209,21 @@ def free_candidates(generator, obstacles, rng: np.random.Generator, omap: Occupa
     (sampled, director_ray, position, and rounds when more than one) and times (generate_s,
     position_s)."""
     import time
-    kept, raw, drawn, rounds = [], 0, 0, 0
+    kept, raw, drawn, n_free = [], 0, 0, 0
     t_gen = t_pos = 0.0
     while True:
         t = time.perf_counter()
         cand, n_raw = generator.generate(rng, omap)
         t_gen += time.perf_counter() - t
-        raw, drawn, rounds = raw + n_raw, drawn + len(cand), rounds + 1
+        raw, drawn = raw + n_raw, drawn + len(cand)
         t = time.perf_counter()
         kept.append(cand[obstacles.free(cand)])
         t_pos += time.perf_counter() - t
-        n_free = sum(len(c) for c in kept)
-        if n_free >= want or rounds >= MAX_FREE_ROUNDS or len(cand) == 0:
+        n_free += len(kept[-1])
+        if n_free >= want or len(kept) >= MAX_FREE_ROUNDS or len(cand) == 0:
             break
-    cand = np.concatenate(kept) if len(kept) > 1 else kept[0]
+    rounds = len(kept)
+    cand = np.concatenate(kept) if rounds > 1 else kept[0]
     stages["sampled"] = raw
     stages["director_ray"] = drawn
     stages["position"] = len(cand)

@@ -30,7 +30,7 @@ from nbvs_drake.experiments import (
 )
 
 NAMES = ["hrt", "objects", "ig_vs_du", "samples", "motion_noise", "clutter", "ort_size", "ort_vs_rs", "metrics",
-         "prediction", "clutter_objects"]
+         "prediction", "clutter_objects", "clutter_oracle"]
 
 #: a definition small enough to run in seconds: the default scene, 2 scans, few candidates
 TINY = """\
@@ -93,11 +93,12 @@ def test_full_sizes_follow_the_papers():
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
     # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
     # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_face, nbvs_fast), and
-    # six trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
-    # nbvs_free_arm3) with EU only
-    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 6 * 10
+    # seven trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
+    # nbvs_free_arm3, nbvs_margin) with EU only
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 7 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["clutter_objects"] == 7 * 3  # issue 50: the seven test objects among the chairs, three seeds
+    assert size["clutter_oracle"] == 2 * 4 * 5  # open and chairs, four planners, five seeds
     assert size["hrt"] % 4 == 0  # a = 0..3
 
 

@@ -507,3 +507,52 @@ def test_arm_clearance_keeps_the_arm_and_camera_off_the_chairs(kin, first_scan_m
     base_only = CollisionModel(sc0, kin, base_padding=0.15)
     paths0 = PlanningObstacles(sc0, kin).for_map(omap).for_paths()
     assert np.array_equal(base_only.free(q[:2000]), paths0.free(q[:2000]))
+
+
+def test_utility_clearance_keeps_the_rollouts_off_the_chairs(kin, first_scan_map):
+    """planner.utility.clearance: a rollout counts as free only where every robot body keeps the
+    margin from the environment. A state free of the chairs but within 1 cm of one passes
+    Algorithm 1's rule and fails with a 1 cm margin; the recovery paths' check keeps the rule."""
+    from nbvs_drake.config import load_scenario
+    from nbvs_drake.planning.candidates import StateSampler
+    from nbvs_drake.planning.collision import CollisionModel
+    from nbvs_drake.planning.motion_planner import PlanningObstacles
+    from nbvs_drake.world.motion import NU
+    _, omap = first_scan_map
+    sc0 = load_scenario("cluttered_room_nbvs")
+    sc1 = load_scenario("cluttered_room_nbvs", settings=["planner.utility.clearance=0.01"])
+    q = StateSampler(sc0, kin).sample_states(np.random.default_rng(5), 4000)
+    near = q[CollisionModel(sc0, kin, padding=0.004).free(q) & ~CollisionModel(sc0, kin, padding=0.01).free(q)]
+    assert len(near) >= 3  # free by 4 mm, within 1 cm of something
+    planner = make_planner(sc1, kin)
+    eu = planner.utility
+    controls = np.zeros((1, NU))  # standing still: no noise acts, every rollout is the state
+    for x in near[:3]:
+        states = np.stack([x, x])
+        verdicts = {}
+        for c in (0.0, 0.01):
+            sc = sc0 if c == 0 else sc1
+            obstacles = PlanningObstacles(sc, kin).for_map(omap)
+            assert (obstacles.rollouts is None) == (c == 0)
+            res = eu._expected_leg(_request(omap, x), controls, states, obstacles, None, lambda s: np.ones(len(s)),
+                                   escape=False, k=20)
+            verdicts[c] = res.feasible
+        assert verdicts == {0.0: True, 0.01: False}
+        # the recovery paths' check (rollouts_free) keeps Algorithm 1's rule
+        obstacles = PlanningObstacles(sc1, kin).for_map(omap)
+        assert eu.rollouts_free(controls, states, obstacles, np.zeros((3, 3)), np.random.default_rng(0), 20)
+
+
+def test_utility_clearance_gives_way_to_algorithm_1_when_nothing_is_feasible(kin, first_scan_map):
+    """With a margin no candidate can keep (0.3 m), the plan is made again under Algorithm 1's
+    rule: it succeeds, says so, and keeps the first attempt's stages (none feasible)."""
+    from nbvs_drake.config import load_scenario
+    sc, omap = first_scan_map
+    sets = ["mapper.voxel_size=0.02", "planner.n_candidates=600"]
+    plain = load_scenario("teapot_eu_mu_nbvs", settings=sets)
+    wide = load_scenario("teapot_eu_mu_nbvs", settings=sets + ["planner.utility.clearance=0.3"])
+    res0 = make_planner(plain, kin).plan(_request(omap, plain.robot.start))
+    res = make_planner(wide, kin).plan(_request(omap, wide.robot.start))
+    assert res0.status == "ok" and "clearance" not in res0.factors
+    assert res.status == "ok" and res.factors["clearance"] == "dropped"
+    assert res.stages["with_clearance"]["eu_feasible"] == 0 and res.stages["eu_feasible"] > 0

@@ -650,9 +650,17 @@ class Expected:
     free_start: bool = False
     alpha: float = 0.01  #: eq. 18: warn when k < log(alpha) / log(1 - eta gamma)
     gamma: float = 0.05
+    #: m: a rollout counts as free only where every robot body keeps this far from the
+    #: environment and W_box (the rollouts' start draws are still judged without it); when no
+    #: candidate of the ranking is feasible so, the plan is made again with Algorithm 1's rule
+    #: (0 m). k rollouts miss a path's rarer errors (a turn's heading 2-3 sigma off); the margin
+    #: stands for them. 0: Algorithm 1's rule alone
+    clearance: float = 0.0
 
     def check(self, at: str) -> None:
         require(self.samples >= 1, f"{at}.samples must be >= 1, got {self.samples}")
+        require(finite(self.clearance) and 0 <= self.clearance <= 0.5,
+                f"{at}.clearance must be a distance in [0, 0.5] m, got {self.clearance}")
         require(self.weighting in ("mean", "probability"),
                 f"{at}.weighting must be 'mean' or 'probability', got {self.weighting!r}")
         require(finite(self.max_collision_rate) and 0 <= self.max_collision_rate < 1,

@@ -41,6 +41,9 @@ class ObstacleModel:
     #: planner.obstacles.base_clearance: the same obstacles with the base padded, for the paths and the
     #: candidates' positions (None: these obstacles)
     padded: "ObstacleModel | None" = None
+    #: planner.utility.clearance: the same obstacles with every robot body padded by it, for
+    #: the expected utility's rollouts (None: these obstacles)
+    rollouts: "ObstacleModel | None" = None
 
     def free(self, q: np.ndarray) -> np.ndarray:
         return self.collision.free(q)
@@ -61,6 +64,7 @@ class PlanningObstacles:
         self.kin = kin
         self._wbox = wbox_model
         self._wbox_padded: ObstacleModel | None = None
+        self._wbox_rollouts: ObstacleModel | None = None
         self._last: ObstacleModel | None = None
 
     def for_map(self, omap: OccupancyMap) -> ObstacleModel:
@@ -70,17 +74,28 @@ class PlanningObstacles:
                 self._wbox = CollisionModel(self.sc, self.kin)
             if self._wbox_padded is None:  # also beside a W_box model given to the constructor
                 self._wbox_padded = self._padded(None, -1)
-            return ObstacleModel(self._wbox, padded=self._wbox_padded)
+                self._wbox_rollouts = self._rollout_model(None, -1)
+            return ObstacleModel(self._wbox, padded=self._wbox_padded, rollouts=self._wbox_rollouts)
         if self._last is not None and self._last.scan == omap.scan_count:
-            return ObstacleModel(self._last.collision, self._last.scan, padded=self._last.padded)
+            return ObstacleModel(self._last.collision, self._last.scan, padded=self._last.padded,
+                                 rollouts=self._last.rollouts)
         t = time.perf_counter()
         boxes, block = omap.obstacle_boxes(p.obstacles.max_boxes)
         model = CollisionModel(self.sc, self.kin, obstacle_boxes=boxes)
         padded = self._padded(boxes, omap.scan_count)
         self._last = ObstacleModel(model, omap.scan_count, {
             "obstacle_boxes": len(boxes), "obstacle_block": block, "obstacles_s": time.perf_counter() - t},
-            padded)
+            padded, self._rollout_model(boxes, omap.scan_count))
         return self._last
+
+    def _rollout_model(self, boxes, scan: int) -> ObstacleModel | None:
+        """planner.utility.clearance > 0 (the expected utility): the same obstacles (the map's
+        `boxes`, or W_box when None) with every robot body padded by it; else None."""
+        u = self.sc.planner.utility
+        c = float(getattr(u, "clearance", 0.0) or 0.0)
+        if c <= 0:
+            return None
+        return ObstacleModel(CollisionModel(self.sc, self.kin, obstacle_boxes=boxes, padding=c), scan)
 
     def _padded(self, boxes, scan: int) -> ObstacleModel | None:
         """planner.obstacles.base_clearance or arm_clearance > 0: the same obstacles (the map's `boxes`,

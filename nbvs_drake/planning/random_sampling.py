@@ -38,13 +38,27 @@ class RandomSamplingPlanner:
         self.overlap_h = overlap_h
 
     def plan(self, request: PlanRequest) -> PlanResult:
+        try:
+            return self._plan_with_fallbacks(request)
+        finally:
+            if hasattr(self.utility, "with_clearance"):
+                self.utility.with_clearance = True
+
+    def _plan_with_fallbacks(self, request: PlanRequest) -> PlanResult:
         res = self._plan(request, self.generator)
+        if res.status == "no_feasible" and getattr(self.utility, "with_clearance", False) \
+                and getattr(self.sc.planner.utility, "clearance", 0.0) > 0:
+            # planner.utility.clearance: no candidate is feasible with the rollouts' margin; the
+            # plan made again, with new draws, under Algorithm 1's rule (and so the arm-only
+            # views after it, whose motion is exact anyway)
+            self.utility.with_clearance = False
+            res = _made_again(res, self._plan(request, self.generator), None, "with_clearance", res.stages)
+            res.factors = dict(res.factors, clearance="dropped")
         if res.status in ("no_feasible", "no_path") and self.sc.planner.noise_fallback:
             # planner.noise_fallback: views from where the robot is, by the arm alone (its
             # motion is exact under Table 4's noise), before the run gives up
             fb = self._plan(request, _ArmOnly(self.sc, self.evaluator.kin, request.q_start))
-            fb.stages = dict(res.stages, fallback=fb.stages)
-            fb.times = {k: res.times.get(k, 0.0) + fb.times.get(k, 0.0) for k in set(res.times) | set(fb.times)}
+            fb = _made_again(res, fb, res.stages, "fallback", fb.stages)
             fb.factors = dict(fb.factors, fallback="arm_only")
             if fb.status != "ok":
                 fb.status = res.status
@@ -121,6 +135,14 @@ class RandomSamplingPlanner:
         best.factors["un_near"] = self.evaluator.near_range_unknown(omap, best.q_goal)
         best.stages, best.times = stages, times
         return best
+
+
+def _made_again(first: PlanResult, then: PlanResult, stages: dict | None, key: str, nested: dict) -> PlanResult:
+    """`then`, a plan made after `first` failed, with `stages` (None: its own) and the other
+    attempt's stages `nested` under `key`, and the times of both attempts added."""
+    then.stages = dict(then.stages if stages is None else stages, **{key: nested})
+    then.times = {k: first.times.get(k, 0.0) + then.times.get(k, 0.0) for k in set(first.times) | set(then.times)}
+    return then
 
 
 class _ArmOnly:

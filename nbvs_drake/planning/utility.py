@@ -53,6 +53,9 @@ class ExpectedUtilityScore:
         self.overlap_h = overlap_h
         #: seconds spent checking rollouts for collision (reset by `select_best` per plan)
         self.checks_s = 0.0
+        #: planner.utility.clearance applies (the planner turns it off for a plan made again
+        #: when no candidate was feasible with it)
+        self.with_clearance = True
         p = sc.planner
         #: the rollouts' settings: the expected utility's, or its defaults where the scorer
         #: only checks paths (the recovery paths of a deterministic planner)
@@ -170,17 +173,23 @@ class ExpectedUtilityScore:
         free at every state (Algorithm 1's feasibility, no collision allowed): the check of
         a path no expected utility scores (mission.recovery_rollouts)."""
         eu = self._expected_leg(PlanRequest(None, states[0], rng, cov), controls, states, obstacles, cov,
-                                lambda s: np.ones(len(s)), k=k, max_collision_rate=0.0, free_start=True)
+                                lambda s: np.ones(len(s)), k=k, max_collision_rate=0.0, free_start=True,
+                                clearance=False)
         return eu.feasible
 
     def _expected_leg(self, request: PlanRequest, controls: np.ndarray, states: np.ndarray, obstacles: ObstacleModel,
                       start_cov, final_utility, escape: bool = True, k: int | None = None,
-                      max_collision_rate: float | None = None, free_start: bool | None = None):
+                      max_collision_rate: float | None = None, free_start: bool | None = None,
+                      clearance: bool = True):
         """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
         states (m+1, 8); k, max_collision_rate and free_start (planner.utility.free_start) default
-        to the planner's."""
+        to the planner's; clearance: the rollouts keep planner.utility.clearance from the
+        obstacles (`obstacles.rollouts`) while `with_clearance` holds."""
         k = self.u.samples if k is None else k
         rate = self.u.max_collision_rate if max_collision_rate is None else max_collision_rate
+        stand = obstacles  # where the rollouts' starts may stand (the true obstacles)
+        if clearance and self.with_clearance and obstacles.rollouts is not None:
+            obstacles = obstacles.rollouts  # planner.utility.clearance: every body keeps the margin
         # the nominal path's escape from a colliding start
         skip = (self.motion.escape_prefix(states, obstacles) or 0) if escape else 0
         verdicts = self._rollout_verdicts(states[1:], obstacles)
@@ -205,7 +214,7 @@ class ExpectedUtilityScore:
             free, final_utility,
             weighting=self.u.weighting, max_collision_rate=rate, start_cov=start_cov,
             block_free=block_free if self.motion.bulk_checks else None,
-            start_free=obstacles.free if (self.u.free_start if free_start is None else free_start) else None)
+            start_free=stand.free if (self.u.free_start if free_start is None else free_start) else None)
 
     def _verified_utility(self, request: PlanRequest, cand: PlanResult):
         """The utility of a rollout's final state when views are verified (mission.verify_views,

@@ -519,8 +519,9 @@ def test_utility_clearance_keeps_the_rollouts_off_the_chairs(kin, first_scan_map
     from nbvs_drake.planning.motion_planner import PlanningObstacles
     from nbvs_drake.world.motion import NU
     _, omap = first_scan_map
-    sc0 = load_scenario("cluttered_room_nbvs")
-    sc1 = load_scenario("cluttered_room_nbvs", settings=["planner.utility.clearance=0.01"])
+    sc0 = load_scenario("cluttered_room_nbvs", settings=["planner.utility.clearance=0.0"])
+    sc1 = load_scenario("cluttered_room_nbvs")  # the preset nbvs_room: 1 cm
+    assert sc1.planner.utility.clearance == 0.01
     q = StateSampler(sc0, kin).sample_states(np.random.default_rng(5), 4000)
     near = q[CollisionModel(sc0, kin, padding=0.004).free(q) & ~CollisionModel(sc0, kin, padding=0.01).free(q)]
     assert len(near) >= 3  # free by 4 mm, within 1 cm of something

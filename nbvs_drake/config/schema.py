@@ -652,9 +652,10 @@ class Expected:
     gamma: float = 0.05
     #: m: a rollout counts as free only where every robot body keeps this far from the
     #: environment and W_box (the rollouts' start draws are still judged without it); when no
-    #: candidate of the ranking is feasible so, the plan is made again with Algorithm 1's rule
-    #: (0 m). k rollouts miss a path's rarer errors (a turn's heading 2-3 sigma off); the margin
-    #: stands for them. 0: Algorithm 1's rule alone
+    #: candidate of the ranking is feasible so, random and view sampling make the plan again with
+    #: Algorithm 1's rule (0 m; the ORT and the baselines keep the margin). k rollouts miss a
+    #: path's rarer errors (a turn's heading 2-3 sigma off); the margin stands for them. 0:
+    #: Algorithm 1's rule alone
     clearance: float = 0.0
 
     def check(self, at: str) -> None:

@@ -43,12 +43,12 @@ def test_the_configuration_reference_is_current():
 
 @pytest.mark.parametrize("preset, definition, levels", [
     ("nbvs_noise", "motion_noise", {"object": "bunny", "approach": "EU-MU", "planner": "nbvs_fast"}),
-    ("nbvs_room", "clutter", {"utility": "EU", "planner": "nbvs_margin"}),
+    ("nbvs_room", "clutter", {"utility": "EU", "planner": "nbvs_free_margin"}),
 ])
 def test_a_scenario_from_a_preset_with_only_the_object_set_is_its_experiment_level(tmp_path, preset, definition,
                                                                                   levels):
     """A user under noise starts from the preset and sets only the object: the run is the one
-    the experiment level measured (motion_noise's nbvs_fast and clutter's nbvs_margin,
+    the experiment level measured (motion_noise's nbvs_fast and clutter's nbvs_free_margin,
     docs/results.md)."""
     f = tmp_path / "mine.yaml"
     f.write_text(f"name: mine\nseed: 1\npreset: {preset}\nscene:\n  object: {{kind: bunny}}\n")
@@ -71,8 +71,8 @@ def test_the_old_flat_schema_round_trips(name):
     itself (the real-robot scenes' supports, the Kinect's faults, the registration's search and
     legs that end after turns only came after it: an old record's search is the one of before,
     None, and its legs end after drives; so did planner.gain_tolerance: an old record's travel
-    factor is eq. 4's, among all views; and planner.utility.clearance: an old record's rollouts
-    keep Algorithm 1's rule)."""
+    factor is eq. 4's, among all views; and planner.utility.clearance and free_candidates: an old
+    record's rollouts keep Algorithm 1's rule, its plans one round of draws)."""
     if name.startswith("real_robot"):
         pytest.skip("the real-robot scenes postdate the old flat schema")
     sc = load_scenario(name)
@@ -82,9 +82,10 @@ def test_the_old_flat_schema_round_trips(name):
     vv = back.localisation.verified_views
     assert vv is None or vv.legs is None or vv.legs.after_drives
     assert back.planner.gain_tolerance == 1.0
-    assert getattr(back.planner.utility, "clearance", 0.0) == 0.0
+    assert getattr(back.planner.utility, "clearance", 0.0) == 0.0 and back.planner.free_candidates == 0
     assert _same(sc, back, ignore=("localisation.search", "localisation.verified_views.legs.after_drives",
-                                   "planner.gain_tolerance", "planner.utility.clearance")) == {}
+                                   "planner.gain_tolerance", "planner.utility.clearance",
+                                   "planner.free_candidates")) == {}
 
 
 def test_an_old_setting_changes_only_its_own_field():
@@ -108,11 +109,14 @@ def test_an_old_record_loads_through_the_migration():
     assert isinstance(sc.planner.utility, Expected) and sc.planner.utility.free_start
     assert isinstance(sc.planner.motion_planner, Roadmap) and sc.planner.obstacles.base_clearance == 0.15
     # the preset as it was then: the registration's search of before (localisation.search),
-    # legs that end after drives too, and rollouts under Algorithm 1's rule alone
+    # legs that end after drives too, rollouts under Algorithm 1's rule alone, one round of draws
+    # evaluated at one stride
     assert sc.localisation.search is None and vv.legs.after_drives and sc.planner.utility.clearance == 0.0
+    assert sc.planner.free_candidates == 0
     assert _same(sc, load_scenario("cluttered_room_nbvs", seed=1, settings=[
         "scene.object.kind=bunny", "localisation.search=null", "localisation.verified_views.legs.after_drives=true",
-        "planner.utility.clearance=0.0"]), ignore=("name",)) == {}
+        "planner.utility.clearance=0.0", "planner.free_candidates=0", "planner.evaluator.coarse_stride=null"]),
+        ignore=("name",)) == {}
 
 
 def test_old_settings_and_documents_migrate():

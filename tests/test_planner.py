@@ -528,20 +528,16 @@ def test_utility_clearance_keeps_the_rollouts_off_the_chairs(kin, first_scan_map
     planner = make_planner(sc1, kin)
     eu = planner.utility
     controls = np.zeros((1, NU))  # standing still: no noise acts, every rollout is the state
+    by_margin = {0.0: PlanningObstacles(sc0, kin).for_map(omap), 0.01: PlanningObstacles(sc1, kin).for_map(omap)}
+    assert by_margin[0.0].rollouts is None and by_margin[0.01].rollouts is not None
     for x in near[:3]:
         states = np.stack([x, x])
-        verdicts = {}
-        for c in (0.0, 0.01):
-            sc = sc0 if c == 0 else sc1
-            obstacles = PlanningObstacles(sc, kin).for_map(omap)
-            assert (obstacles.rollouts is None) == (c == 0)
-            res = eu._expected_leg(_request(omap, x), controls, states, obstacles, None, lambda s: np.ones(len(s)),
-                                   escape=False, k=20)
-            verdicts[c] = res.feasible
+        verdicts = {c: eu._expected_leg(_request(omap, x), controls, states, obstacles, None,
+                                        lambda s: np.ones(len(s)), escape=False, k=20).feasible
+                    for c, obstacles in by_margin.items()}
         assert verdicts == {0.0: True, 0.01: False}
         # the recovery paths' check (rollouts_free) keeps Algorithm 1's rule
-        obstacles = PlanningObstacles(sc1, kin).for_map(omap)
-        assert eu.rollouts_free(controls, states, obstacles, np.zeros((3, 3)), np.random.default_rng(0), 20)
+        assert eu.rollouts_free(controls, states, by_margin[0.01], np.zeros((3, 3)), np.random.default_rng(0), 20)
 
 
 def test_utility_clearance_gives_way_to_algorithm_1_when_nothing_is_feasible(kin, first_scan_map):

@@ -7,6 +7,7 @@ noise); the best candidate is the NBVS."""
 
 from __future__ import annotations
 
+import dataclasses as dc
 import time
 
 import numpy as np
@@ -38,26 +39,19 @@ class RandomSamplingPlanner:
         self.overlap_h = overlap_h
 
     def plan(self, request: PlanRequest) -> PlanResult:
-        try:
-            return self._plan_with_fallbacks(request)
-        finally:
-            if hasattr(self.utility, "with_clearance"):
-                self.utility.with_clearance = True
-
-    def _plan_with_fallbacks(self, request: PlanRequest) -> PlanResult:
         res = self._plan(request, self.generator)
-        if res.status == "no_feasible" and getattr(self.utility, "with_clearance", False) \
-                and getattr(self.sc.planner.utility, "clearance", 0.0) > 0:
+        margin = True
+        if res.status == "no_feasible" and getattr(self.sc.planner.utility, "clearance", 0.0) > 0:
             # planner.utility.clearance: no candidate is feasible with the rollouts' margin; the
             # plan made again, with new draws, under Algorithm 1's rule (and so the arm-only
             # views after it, whose motion is exact anyway)
-            self.utility.with_clearance = False
-            res = _made_again(res, self._plan(request, self.generator), None, "with_clearance", res.stages)
+            margin = False
+            res = _made_again(res, self._plan(request, self.generator, margin), None, "with_clearance", res.stages)
             res.factors = dict(res.factors, clearance="dropped")
         if res.status in ("no_feasible", "no_path") and self.sc.planner.noise_fallback:
             # planner.noise_fallback: views from where the robot is, by the arm alone (its
             # motion is exact under Table 4's noise), before the run gives up
-            fb = self._plan(request, _ArmOnly(self.sc, self.evaluator.kin, request.q_start))
+            fb = self._plan(request, _ArmOnly(self.sc, self.evaluator.kin, request.q_start), margin)
             fb = _made_again(res, fb, res.stages, "fallback", fb.stages)
             fb.factors = dict(fb.factors, fallback="arm_only")
             if fb.status != "ok":
@@ -65,11 +59,15 @@ class RandomSamplingPlanner:
             return fb
         return res
 
-    def _plan(self, request: PlanRequest, generator) -> PlanResult:
+    def _plan(self, request: PlanRequest, generator, margin: bool = True) -> PlanResult:
+        """One attempt; margin False: the rollouts under Algorithm 1's rule, without
+        planner.utility.clearance (the plan's obstacles without their `rollouts`)."""
         p = self.sc.planner
         omap, rng = request.omap, request.rng
         times, stages = {}, {}
         obstacles: ObstacleModel = self.obstacles.for_map(omap)
+        if not margin:
+            obstacles = dc.replace(obstacles, rollouts=None)
         stages.update(obstacles.stats)
         # planner.obstacles.base_clearance: the positions and the paths keep the base clear of the
         # environment; the expected utility's rollouts meet the true obstacles

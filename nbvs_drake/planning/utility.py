@@ -53,9 +53,6 @@ class ExpectedUtilityScore:
         self.overlap_h = overlap_h
         #: seconds spent checking rollouts for collision (reset by `select_best` per plan)
         self.checks_s = 0.0
-        #: planner.utility.clearance applies (the planner turns it off for a plan made again
-        #: when no candidate was feasible with it)
-        self.with_clearance = True
         p = sc.planner
         #: the rollouts' settings: the expected utility's, or its defaults where the scorer
         #: only checks paths (the recovery paths of a deterministic planner)
@@ -184,11 +181,11 @@ class ExpectedUtilityScore:
         """Algorithm 1 over one stretch of a plan: controls (m, 7) from states[0], its nominal
         states (m+1, 8); k, max_collision_rate and free_start (planner.utility.free_start) default
         to the planner's; clearance: the rollouts keep planner.utility.clearance from the
-        obstacles (`obstacles.rollouts`) while `with_clearance` holds."""
+        obstacles (`obstacles.rollouts`, None when a plan is made again without it)."""
         k = self.u.samples if k is None else k
         rate = self.u.max_collision_rate if max_collision_rate is None else max_collision_rate
         stand = obstacles  # where the rollouts' starts may stand (the true obstacles)
-        if clearance and self.with_clearance and obstacles.rollouts is not None:
+        if clearance and obstacles.rollouts is not None:
             obstacles = obstacles.rollouts  # planner.utility.clearance: every body keeps the margin
         # the nominal path's escape from a colliding start
         skip = (self.motion.escape_prefix(states, obstacles) or 0) if escape else 0

@@ -53,7 +53,7 @@ class RandomSamplingPlanner:
             # motion is exact under Table 4's noise), before the run gives up
             fb = self._plan(request, _ArmOnly(self.sc, self.evaluator.kin, request.q_start), margin)
             fb = _made_again(res, fb, res.stages, "fallback", fb.stages)
-            fb.factors = dict(fb.factors, fallback="arm_only")
+            fb.factors = dict(fb.factors, fallback="arm_only", **({} if margin else {"clearance": "dropped"}))
             if fb.status != "ok":
                 fb.status = res.status
             return fb
@@ -70,10 +70,14 @@ class RandomSamplingPlanner:
             obstacles = dc.replace(obstacles, rollouts=None)
         stages.update(obstacles.stats)
         # planner.obstacles.base_clearance: the positions and the paths keep the base clear of the
-        # environment; the expected utility's rollouts meet the true obstacles
-        paths = obstacles.for_paths()
+        # environment; the expected utility's rollouts meet the true obstacles. The arm-only
+        # views keep the base where it stands, which the noise may have left nearer than that:
+        # their positions and paths meet the true obstacles (the padded ones would refuse every
+        # arm configuration there, and the run would stop)
+        own = generator is self.generator
+        paths = obstacles.for_paths() if own else obstacles
         # planner.free_candidates: the scenario's generator only (not the arm-only fallback's)
-        want = p.free_candidates if generator is self.generator else 0
+        want = p.free_candidates if own else 0
         cand = free_candidates(generator, paths, rng, omap, stages, times, want)
 
         un_total = max(omap.unknown_count(), 1)

@@ -97,7 +97,7 @@ def test_full_sizes_follow_the_papers():
     # nbvs_free_arm3, nbvs_margin, nbvs_free_margin, nbvs_nodist) with EU only
     assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 11 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
-    assert size["clutter_objects"] == 7 * 3  # issue 50: the seven test objects among the chairs, three seeds
+    assert size["clutter_objects"] == 7 * 2 * 3  # issue 50: the seven test objects among the chairs, two maps, three seeds
     assert size["clutter_oracle"] == 2 * 4 * 5  # open and chairs, four planners, five seeds
     assert size["hrt"] % 4 == 0  # a = 0..3
 

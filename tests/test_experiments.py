@@ -93,8 +93,9 @@ def test_full_sizes_follow_the_papers():
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
     # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
     # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_face, nbvs_fast), and
-    # nine trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
-    # nbvs_free_arm3, nbvs_margin, nbvs_free_margin, nbvs_nodist) with EU only
+    # eleven trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
+    # nbvs_free_arm3, nbvs_margin, nbvs_free_margin, nbvs_nodist, nbvs_free_margin_tol25,
+    # nbvs_free_margin_1cm) with EU only
     assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 11 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["clutter_objects"] == 7 * 2 * 3  # issue 50: the seven test objects among the chairs, two maps, three seeds

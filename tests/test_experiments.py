@@ -98,7 +98,7 @@ def test_full_sizes_follow_the_papers():
     # nbvs_free_margin_1cm) with EU only
     assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 11 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
-    assert size["clutter_objects"] == 7 * 2 * 3  # issue 50: the seven test objects among the chairs, two maps, three seeds
+    assert size["clutter_objects"] == 7 * 2 * 3  # issue 50: seven test objects among the chairs, two maps, 3 seeds
     assert size["clutter_oracle"] == 2 * 4 * 5  # open and chairs, four planners, five seeds
     assert size["hrt"] % 4 == 0  # a = 0..3
 
@@ -397,6 +397,26 @@ def test_a_finished_run_whose_scenario_changed_since_is_not_taken_as_finished(tm
     err = r.stderr.strip().splitlines()
     assert len(err) == 1 and "mapper.prob_hit, planner.top_k" in err[0] and "another --out" in err[0]
     assert (run / "summary.json").is_file()  # nothing removed
+
+
+def test_a_record_whose_scenario_changed_since_is_refused(tmp_path):
+    """A preset or scenario that takes a new value changes what the same overrides resolve to:
+    the experiment's own record of the run, made before, is refused (one line naming it), not
+    restored as the run asked for (a table rebuilt from it would show what today's code does
+    not do)."""
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("name: mine\nseed: 1\npreset: nbvs\n")
+    y = tmp_path / "tiny.yaml"
+    y.write_text(TINY.replace("[1, 2]", "[1]").replace("scenario: default", f"scenario: {mine}"))
+    rec_root = tmp_path / "records"
+    first = _cli(str(y), "--jobs", "1", "--out", str(tmp_path / "a"), "--records", str(rec_root))
+    assert first.returncode == 0, first.stdout + first.stderr
+    same = _cli(str(y), "--jobs", "1", "--out", str(tmp_path / "b"), "--records", str(rec_root), "--table-only")
+    assert same.returncode == 0 and "1 restored from" in same.stdout, same.stdout + same.stderr
+    mine.write_text("name: mine\nseed: 1\npreset: nbvs\nplanner: {top_k: 30}\n")  # the scenario changed
+    again = _cli(str(y), "--jobs", "1", "--out", str(tmp_path / "c"), "--records", str(rec_root), "--table-only")
+    assert again.returncode != 0 and len(again.stderr.strip().splitlines()) == 1, again.stdout + again.stderr
+    assert "now resolves to" in again.stderr and "0.3_s1.json.gz" in again.stderr
 
 
 def test_run_records_continue_a_study_in_another_output_folder(tmp_path):

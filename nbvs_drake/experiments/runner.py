@@ -674,8 +674,9 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
     by another experiment or under another run name (equal settings, `records.RecordIndex`),
     which is then also recorded under this run's name. A record of its own made with other
     overrides than its spec asks is restored when its scenario has the same settings (and
-    recorded again with the spec's overrides), and refused otherwise, as a run folder is.
-    Returns the number restored."""
+    recorded again with the spec's overrides), and refused otherwise, as a run folder is; so is
+    one of its own made with the same overrides whose scenario they no longer resolve to (a
+    preset changed since). Returns the number restored."""
     if records is None:
         return 0
     from .records import RecordIndex, read_record, restore
@@ -695,6 +696,12 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
             if src is None:
                 continue
         rec = read_record(src)
+        if not shared and _run_key(rec.get("run") or {}) == spec.key() and not _same_settings(rec, spec):
+            # its own record, asked with the same overrides, but the scenario they resolve to
+            # has changed since (a preset or a built-in scenario took a new value): not this run
+            raise ExperimentError(f"run record {src} was made with other settings than this definition now "
+                                  f"resolves to (a preset or scenario changed since it was made); pin what it "
+                                  f"was made with in the definition, remove it, or use other --records")
         if shared:  # the run this spec asks for, made under another experiment's name
             rec["run"] = dict(rec.get("run") or {}, **spec.to_json(), shared_from=f"{src.parent.name}/{src.name}")
         key = _run_key(rec.get("run") or {})

@@ -696,12 +696,6 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
             if src is None:
                 continue
         rec = read_record(src)
-        if not shared and _run_key(rec.get("run") or {}) == spec.key() and not _same_settings(rec, spec):
-            # its own record, asked with the same overrides, but the scenario they resolve to
-            # has changed since (a preset or a built-in scenario took a new value): not this run
-            raise ExperimentError(f"run record {src} was made with other settings than this definition now "
-                                  f"resolves to (a preset or scenario changed since it was made); pin what it "
-                                  f"was made with in the definition, remove it, or use other --records")
         if shared:  # the run this spec asks for, made under another experiment's name
             rec["run"] = dict(rec.get("run") or {}, **spec.to_json(), shared_from=f"{src.parent.name}/{src.name}")
         key = _run_key(rec.get("run") or {})
@@ -713,6 +707,12 @@ def _restore_records(batch: Batch, specs, records, folder: str) -> int:
             # scenario file used to leave to the default (e.g. planner.motion_planner)
             rec["run"] = dict(rec.get("run") or {}, **spec.to_json(), recorded_as=key)
             shared = True  # recorded again under the definition's overrides
+        elif not shared and not _same_settings(rec, spec):
+            # its own record, asked with the same overrides, but the scenario they resolve to
+            # has changed since (a preset or a built-in scenario took a new value): not this run
+            raise ExperimentError(f"run record {src} was made with other settings than this definition now "
+                                  f"resolves to (a preset or scenario changed since it was made); pin what it "
+                                  f"was made with in the definition, remove it, or use other --records")
         final = batch.final(spec)
         if final.exists():
             shutil.rmtree(final)

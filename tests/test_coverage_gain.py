@@ -248,6 +248,54 @@ def test_a_ray_gains_over_the_density_of_the_side_it_meets():
     assert m[K.M_COVER_GAIN] == pytest.approx(n * _closed_form(t, 4.0 * d1), rel=1e-6)
 
 
+def test_the_back_side_mode_counts_only_the_unseen_side_as_new():
+    """planner.coverage.back_side (bin densities of no column): a ray that meets the sampled
+    side, face-on or turned 60 degrees, gains over the voxel's one density and face-on; one
+    that meets only the back of the voxel's surface gains as on unsampled surface."""
+    from nbvs_drake.planning.views import _BINS
+    d1 = 1.0 / (PITCH * 0.5) ** 2
+    lo, dens = _wall(), np.full(DIMS, 4.0 * d1, np.float32)
+    dirs, tn, tf = _rays()
+    n, t = len(dirs), 0.61 - 0.11
+
+    def gain(normal):
+        slot = np.full(DIMS, -1, np.int32)
+        slot[30, 10, 10] = 0
+        nv = np.asarray(normal, float) / np.linalg.norm(normal)
+        fn = np.zeros((1, len(_BINS), 4), np.float32)
+        fn[0, int(np.argmax(_BINS @ nv))] = [*nv, 5.0]
+        return K.evaluate_views(lo.astype(np.float32), np.zeros(3), RES, np.array([[0.11, 0.21, 0.21]]),
+                                R_CAM[None].copy(), dirs, tn, tf, L_FREE, L_OCC, 1, 2, False, 0.0, dens, COV_K,
+                                PITCH, STRIDE, facing=(slot, np.zeros((1, 0), np.float32), fn),
+                                facing_cos=-0.25)[0][K.M_COVER_GAIN]
+
+    seen = n * _closed_form(t, 4.0 * d1)
+    assert gain([-1.0, 0.0, 0.0]) == pytest.approx(seen, rel=1e-6)
+    assert gain([-0.5, np.sqrt(0.75), 0.0]) == pytest.approx(seen, rel=1e-6)
+    assert gain([1.0, 0.0, 0.0]) == pytest.approx(n * _closed_form_at(t, 0.0, 1.0), rel=1e-5)
+    assert gain([1.0, 0.0, 0.0]) > 10 * seen
+
+
+def test_side_normals_bins_each_voxel_like_facing_density():
+    """views.side_normals: the same slots and bins as facing_density, no densities."""
+    from nbvs_drake.config import Scenario
+    from nbvs_drake.mapping.occupancy import OccupancyMap
+    from nbvs_drake.planning.views import facing_density, side_normals
+    m0 = OccupancyMap.for_scenario(Scenario())
+    rng = np.random.default_rng(2)
+    n = 3000
+    pts = (np.c_[np.full(n, 0.305), rng.uniform(0, 0.1, n), rng.uniform(0, 0.1, n)] + m0.spec.bmin).astype(np.float32)
+    nrm = np.tile(np.float32([-1.0, 0.0, 0.0]), (n, 1))
+    m = OccupancyMap(m0.spec, m0.model, object_points=pts, wbox_min=m0.wbox_min, wbox_max=m0.wbox_max,
+                     object_normals=nrm)
+    slot, tab, norm = side_normals(m)
+    fslot, _, fnorm = facing_density(m)
+    assert tab.shape == (norm.shape[0], 0)
+    np.testing.assert_array_equal(slot, fslot)
+    np.testing.assert_allclose(norm, fnorm, atol=1e-6)
+    assert side_normals(OccupancyMap(m0.spec, m0.model, object_points=pts)) is None
+
+
 def test_facing_density_keeps_the_two_sides_of_a_thin_wall_apart():
     """Two sheets 4 mm apart in the same voxels, each sampled at 40,000 per m^2 with normals
     facing away from each other (a thin wall seen from both sides): each voxel gets two bins,

@@ -271,6 +271,20 @@ def _facing_density(row, fdens, fnorm, fcos, dx, dy, dz):
 
 
 @nb.njit(cache=True, inline="always")
+def _meets_back(row, fnorm, fcos, dx, dy, dz):
+    """Whether a ray of direction (dx, dy, dz) meets only the back of the surface in an
+    occupied voxel: the voxel holds points (table row `row` >= 0) and none of its normal bins'
+    mean normals n faces the ray (n . (-d) <= fcos). See views.side_normals."""
+    if row < 0:
+        return False
+    for b in range(fnorm.shape[1]):
+        if fnorm[row, b, 3] > 0.0:
+            if -(fnorm[row, b, 0] * dx + fnorm[row, b, 1] * dy + fnorm[row, b, 2] * dz) > fcos:
+                return False
+    return True
+
+
+@nb.njit(cache=True, inline="always")
 def _first_solid(occ, ox, oy, oz, dx, dy, dz, t_max):
     """The range along the ray (o, d) at which it enters the first of the known solids `occ`
     (M, 8: centre, half size, cos and sin of the yaw about z), or t_max; a solid the ray
@@ -504,7 +518,11 @@ def _eval_one_view(grid, sensor, metric, view, work, out):
                                 d0 = dens[i, j, k]
                                 c0 = 1.0
                                 if with_facing:  # the density of the surface that faces the ray
-                                    d0, c0 = _facing_density(fslot[i, j, k], fdens, fnorm, fcos, dx, dy, dz)
+                                    if fdens.shape[1] == 0:  # the back side only (views.side_normals)
+                                        if _meets_back(fslot[i, j, k], fnorm, fcos, dx, dy, dz):
+                                            d0 = 0.0
+                                    else:
+                                        d0, c0 = _facing_density(fslot[i, j, k], fdens, fnorm, fcos, dx, dy, dz)
                                 cover += _cover_gain(d0, cov_k, pitch, stride2,
                                                      _voxel_range(bmin, res, i, j, k, ox, oy, oz), c0)
                             if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
@@ -584,7 +602,8 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     `facing` (slot grid int32, bin densities (R, B), bin normals and weights (R, B, 4); see
     planning.views.facing_density): a ray that lands on known surface gains over the density
     of the voxel's samples whose normals face it (n . (-d) > `facing_cos`), not over all of
-    the voxel's samples (`density`).
+    the voxel's samples (`density`); with bin densities of no column (views.side_normals), over
+    `density` unless none of the voxel's normal bins faces the ray (density 0: its unseen side).
     `occluders` (M, 8: centre, half size, cos and sin of the yaw; `known_occluders`): known
     solids outside the grid (chairs) that end a ray where it enters them; None: the grid
     alone decides what a ray sees.

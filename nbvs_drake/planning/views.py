@@ -60,6 +60,8 @@ class ViewEvaluator:
         self.n_chunks = max(1, numba.get_num_threads())
         #: planner.coverage.facing_density: a ray on known surface gains over the density of the side it meets
         self.facing_density = bool(sc.planner.coverage.facing_density)
+        #: planner.coverage.back_side: a ray on only the back of a voxel's surface gains as on new surface
+        self.back_side = bool(sc.planner.coverage.back_side)
         #: planner.view_occluders(): the known environment's boxes that end the views' rays
         self.occluders = K.known_occluders(sc.scene) if sc.planner.view_occluders() else None
 
@@ -218,6 +220,10 @@ class ViewEvaluator:
         """facing_density(omap), once per set of object points."""
         return self._per_map("facing", omap.object_points, lambda: facing_density(omap))
 
+    def _sides(self, omap: OccupancyMap):
+        """side_normals(omap), once per set of object points."""
+        return self._per_map("sides", omap.object_points, lambda: side_normals(omap))
+
     def _near(self, omap: OccupancyMap):
         """near_surface(omap), once per occupancy grid."""
         return self._per_map("near", omap.logodds, lambda: near_surface(omap))
@@ -247,8 +253,8 @@ class ViewEvaluator:
         if self.coverage_radius > 0:
             kw.update(density=self._density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
                       stride=stride)
-            if self.facing_density:
-                f = self._facing(omap)
+            if self.facing_density or self.back_side:
+                f = self._facing(omap) if self.facing_density else self._sides(omap)
                 if f is not None:
                     kw.update(facing=f)
             if self.near_surface_model:
@@ -406,10 +412,9 @@ def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
     idx, inside = omap.spec.voxel_index(pts)
     sel = np.flatnonzero(inside & has)
     dims = omap.spec.dims
-    slot = np.full(dims, -1, np.int32)
     nb = len(_BINS)
     if len(sel) <= k:
-        return slot, np.zeros((0, nb), np.float32), np.zeros((0, nb, 4), np.float32)
+        return np.full(dims, -1, np.int32), np.zeros((0, nb), np.float32), np.zeros((0, nb, 4), np.float32)
     m = min(4 * k, len(pts))
     dd, ii = cKDTree(pts).query(pts[sel], m)
     same = np.einsum("pmj,pj->pm", nrm[ii], nrm[sel]) > SAME_SIDE_COS
@@ -418,19 +423,50 @@ def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
     at = np.argmax(cnt > k, axis=1)  # the k-th neighbour on the same side
     dk = np.where(enough, dd[np.arange(len(sel)), at], dd[:, -1])
     dens = _knn_density(np.where(enough, k, cnt[:, -1] - 1), dk)
-    b = np.argmax(nrm[sel] @ _BINS.T, axis=1)
-    flat = np.ravel_multi_index(idx[sel].T, dims)
-    vox, row = np.unique(flat, return_inverse=True)
+    slot, key, norm = _binned_normals(dims, idx[sel], nrm[sel])
+    keys, med = _median_by(key, dens)
+    tab = np.zeros((norm.shape[0], nb), np.float32)
+    tab.reshape(-1)[keys] = med
+    return slot, tab, norm
+
+
+def _binned_normals(dims, idx: np.ndarray, nrm: np.ndarray):
+    """The voxels `idx` (P, 3) of points with unit normals `nrm` (P, 3), binned: (slot grid:
+    each voxel's row, -1 where no point; key (P,): each point's row * 26 + its normal bin;
+    norm (R, 26, 4) float32: each bin's mean unit normal and point count)."""
+    nb = len(_BINS)
+    slot = np.full(dims, -1, np.int32)
+    b = np.argmax(nrm @ _BINS.T, axis=1)
+    vox, row = np.unique(np.ravel_multi_index(idx.T, dims), return_inverse=True)
     slot.reshape(-1)[vox] = np.arange(len(vox), dtype=np.int32)
     key = row * nb + b
-    keys, med = _median_by(key, dens)
-    tab = np.zeros((len(vox), nb), np.float32)
-    tab.reshape(-1)[keys] = med
     norm = np.zeros((len(vox), nb, 4), np.float64)
-    np.add.at(norm.reshape(-1, 4), key, np.c_[nrm[sel], np.ones(len(sel))])
+    np.add.at(norm.reshape(-1, 4), key, np.c_[nrm, np.ones(len(nrm))])
     n3 = norm[..., :3]
     n3 /= np.maximum(np.linalg.norm(n3, axis=-1, keepdims=True), 1e-12)
-    return slot, tab, norm.astype(np.float32)
+    return slot, key, norm.astype(np.float32)
+
+
+def side_normals(omap: OccupancyMap):
+    """The sides of each occupied voxel's surface, for a coverage gain that tells a ray on a
+    voxel's unseen side (planner.coverage.back_side; view_metrics.evaluate_views' `facing`
+    with bin densities of no column): (slot grid, an (R, 0) table, norm (R, 26, 4): the mean
+    unit normal and point count of the voxel's points in each of 26 direction bins). A ray
+    that none of a voxel's bins faces meets the unseen side of a thin wall that shares the
+    voxel with its seen side: it gains as on new surface; any other ray over the voxel's one
+    density (sample_density). No neighbour queries: one pass over the points. None when the
+    map's points carry no normals."""
+    pts = np.asarray(omap.object_points, np.float64)
+    nrm = np.asarray(omap.object_normals, np.float64)
+    if len(pts) == 0:
+        return None
+    has = np.linalg.norm(nrm, axis=1) > 0.5
+    if not has.any():
+        return None
+    idx, inside = omap.spec.voxel_index(pts)
+    sel = inside & has
+    slot, _, norm = _binned_normals(omap.spec.dims, idx[sel], nrm[sel])
+    return slot, np.zeros((norm.shape[0], 0), np.float32), norm
 
 
 #: unknown voxels within this many voxels of known surface may hold new surface (the

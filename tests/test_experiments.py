@@ -96,7 +96,7 @@ def test_full_sizes_follow_the_papers():
     # eleven trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
     # nbvs_free_arm3, nbvs_margin, nbvs_free_margin, nbvs_nodist, nbvs_free_margin_tol25,
     # nbvs_free_margin_1cm) with EU only
-    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 12 * 10
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 13 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
     assert size["clutter_objects"] == 7 * 2 * 3  # issue 50: seven test objects among the chairs, two maps, 3 seeds
     # open and chairs, four planners, five seeds (the bunny); the test objects: nbvs among the chairs, the oracle in both

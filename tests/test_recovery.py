@@ -570,3 +570,49 @@ def test_the_arm_only_fallback_keeps_the_base_where_the_noise_left_it(first_scan
     res = planner._plan(PlanRequest(omap, x, np.random.default_rng(5), None), _ArmOnly(sc, kin, x), margin=False)
     assert res.stages["position"] > 0
     assert res.status == "ok" and np.array_equal(res.q_goal[:3], x[:3])
+
+
+@pytest.mark.parametrize("replan", [False, True])
+def test_a_frame_no_path_answers_gets_a_fresh_plan_not_a_blind_scan(kin, first_scan_map, replan):
+    """localisation.verified_views.replan: a frame asks for a correction back to a view that no
+    path reaches (its base stands in the table). Without replan the robot stays (an empty plan:
+    the next frame is the scan, taken where it stands); with it the next view is planned afresh
+    from the belief, emitted as a scan's plan is, with a new target, once per scan."""
+    from pydrake.systems.analysis import Simulator
+
+    from nbvs_drake.planning import make_planner
+    from nbvs_drake.planning.recovery import Recovery
+    from nbvs_drake.systems.messages import Belief
+    from nbvs_drake.systems.nbvs_planner import NBVSPlanner, PlannerMemory
+    _, omap = first_scan_map
+    sc = load_scenario("teapot_eu_mu", settings=["mission.verify_views=true",
+                                                  f"localisation.verified_views.replan={str(replan).lower()}"])
+    q0 = np.array(sc.robot.start, float)
+    impl = make_planner(sc, kin)
+    target = q0.copy()
+    target[:3] = [0.0, 0.0, 0.0]  # the base in the table: no path
+    sysm = NBVSPlanner.for_scenario(sc, impl, q0, Recovery(sc, kin, impl.motion, impl.obstacles))
+    sim = Simulator(sysm)
+    ctx = sim.get_mutable_context()
+    mem = PlannerMemory(ControlSequence(4, 0.1, np.zeros((0, 7)), q0[None], "relocalise", target), omap.scan_count,
+                        answered_frame=1, target=target)
+    ctx.get_mutable_abstract_state(0).set_value(mem)
+    sysm.GetInputPort("map").FixValue(ctx, AbstractValue.Make(omap))
+    sysm.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(Belief(1, q0, q0, np.zeros((3, 3)), 2, "correct")))
+    sim.AdvanceTo(0.05)
+    new = ctx.get_abstract_state(0).get_value()
+    assert new.controls.plan_id == 5 and new.answered_frame == 2 and new.report.scan == mem.report.scan
+    if not replan:
+        assert new.controls.purpose == "relocalise" and len(new.controls.controls) == 0 and not new.replanned
+        return
+    assert new.replanned and new.controls.purpose in ("leg", "view") and len(new.controls.controls) > 0
+    assert not np.array_equal(new.controls.target, target)
+    assert new.report.result["replanned_at_frame"] == 2 and new.report.result["status"] == "ok"
+    np.testing.assert_allclose(new.report.result["q_goal"], new.controls.target, atol=1e-5)
+    # a second frame no path answers before the scan: the robot stays, as without replan
+    stuck = PlannerMemory(new.controls, new.planned_for_scan, new.report, 2, target, replanned=True)
+    ctx.get_mutable_abstract_state(0).set_value(stuck)
+    sysm.GetInputPort("belief").FixValue(ctx, AbstractValue.Make(Belief(1, q0, q0, np.zeros((3, 3)), 3, "correct")))
+    sim.AdvanceTo(0.15)
+    again = ctx.get_abstract_state(0).get_value()
+    assert again.controls.purpose == "relocalise" and len(again.controls.controls) == 0

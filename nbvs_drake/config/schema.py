@@ -456,6 +456,10 @@ class VerifiedViews:
     #: accuracy (the open scene's measured up to ~2 cm; the room's, with the chairs in the
     #: registration model, 0.5 mm)
     registered_sigma: list[float] = dc.field(default_factory=lambda: list(REGISTERED_SIGMA))
+    #: when no path answers a frame (a correction or the next leg from where a re-localisation
+    #: left the robot), plan the next view afresh from the registered belief (once per scan)
+    #: instead of taking the scan where the robot stands, aimed at the landmarks, not the object
+    replan: bool = False
 
     def check(self, at: str) -> None:
         require(finite(self.tolerance_m, self.tolerance_rad) and self.tolerance_m > 0 and self.tolerance_rad > 0,

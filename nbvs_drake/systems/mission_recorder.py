@@ -46,7 +46,9 @@ class MissionRecorder(LeafSystem):
     voxels) and appends iteration k to the IterationLog with the scan and plan reports, the
     true state at the scan, the believed (dead-reckoned) and the corrected (registered)
     states, and the executed (true) path of the motion that led to scan k; from scan 2 on,
-    the prediction of the plan that led to it and the scan's outcome (`evaluation`). It keeps
+    the prediction of the plan that led to it and the scan's outcome (`evaluation`); when
+    that plan was made again after a localisation frame (verified_views.replan), the record
+    keeps it as `replanned_plan` and the prediction is its. It keeps
     the map snapshot of every iteration in `maps` (for the replay).
 
     Input ports:
@@ -105,6 +107,12 @@ class MissionRecorder(LeafSystem):
         self._frame_errors = []
         return out
 
+    _replanned: PlanReport | None = None
+
+    @staticmethod
+    def _plan_json(report: PlanReport) -> dict:
+        return {key: v for key, v in report.to_json().items() if key not in ("scan", "believed_state", "corrected_state")}
+
     def _publish(self, context):
         # moving: sample the executed path (a sink's side effect, as the log)
         if not ControllerStatus.of(self._status.Eval(context)).idle:
@@ -118,6 +126,8 @@ class MissionRecorder(LeafSystem):
         report: PlanReport = self._plan.Eval(context)
         k = report.scan
         if k <= self.written():
+            if k == self.written() and "replanned_at_frame" in report.result:
+                self._replanned = report  # the written plan made again after a frame (verified_views.replan)
             return
         with stage(EVALUATION, "iteration_record"):
             omap: OccupancyMap = self._map.Eval(context)
@@ -138,8 +148,7 @@ class MissionRecorder(LeafSystem):
                 "remaining_unknown_m3": counts["unknown"] * omap.voxel_volume(),
                 "object_points": int(len(omap.object_points)),
                 "scan": self._with_frame_errors(scan.info),
-                "plan": {key: v for key, v in report.to_json().items()
-                         if key not in ("scan", "believed_state", "corrected_state")},
+                "plan": self._plan_json(report),
                 "true_state": [round(float(v), 6) for v in self._true.Eval(context)],
                 "believed_state": report.believed_state,
                 "corrected_state": report.corrected_state,
@@ -148,8 +157,11 @@ class MissionRecorder(LeafSystem):
                 "coverage_s": t_cov,
                 "wall_s": now - self._t_last,
             }
+            if self._replanned is not None:  # the plan that led to this scan: the previous one made again
+                rec["replanned_plan"] = self._plan_json(self._replanned)
+                self._replanned = None
             if self.maps and self.log.records:  # the plan that led to this scan: its prediction, and what came
-                prev_plan = self.log.records[-1]["plan"]
+                prev_plan = rec.get("replanned_plan") or self.log.records[-1]["plan"]
                 if prev_plan.get("status") == "ok":
                     rec["prediction"] = plan_prediction(prev_plan.get("factors", {}), omap.voxel_volume())
                 rec["outcome"] = scan_outcome(self.maps[-1], omap)

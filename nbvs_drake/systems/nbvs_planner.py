@@ -22,7 +22,7 @@ class PlannerMemory:
 
     def __init__(self, controls: ControlSequence, planned_for_scan: int = 0, report: PlanReport | None = None,
                  answered_frame: int = 0, target: np.ndarray | None = None, legs: tuple = (),
-                 recovery_s: float = 0.0):
+                 recovery_s: float = 0.0, replanned: bool = False):
         self.controls = controls
         self.planned_for_scan = planned_for_scan
         self.report = report or PlanReport()
@@ -34,6 +34,8 @@ class PlannerMemory:
         #: seconds spent answering localisation frames (corrections, legs, re-localisation views)
         #: since the last scan's report
         self.recovery_s = recovery_s
+        #: localisation.verified_views.replan: the view of this scan was planned afresh once
+        self.replanned = replanned
 
     def __deepcopy__(self, memo):
         return self
@@ -79,16 +81,19 @@ class NBVSPlanner(LeafSystem):
     @staticmethod
     def for_scenario(sc: Scenario, planner: Planner, q0, recovery=None) -> "NBVSPlanner":
         """The planner system of a scenario: each of its parts gets its own section."""
-        legs = LegRule.of(sc.localisation.verified_views, sc.noise, sc.robot.control_dt)
+        vv = sc.localisation.verified_views
+        legs = LegRule.of(vv, sc.noise, sc.robot.control_dt)
         return NBVSPlanner(sc.mission, legs, planner, q0, sc.robot.control_dt, sc.seed,
-                           OccupancyMap.for_scene(sc.scene, sc.mapper), recovery)
+                           OccupancyMap.for_scene(sc.scene, sc.mapper), recovery,
+                           replan=bool(vv is not None and vv.replan))
 
     def __init__(self, mission: MissionConfig, legs: LegRule, planner: Planner, q0, dt: float, seed: int,
-                 empty_map: OccupancyMap, recovery=None):
+                 empty_map: OccupancyMap, recovery=None, replan: bool = False):
         """`mission`: the stop criteria; `legs`: where plans' legs end (verified views under
-        noise); `empty_map`: the map port's model value; `seed`: the plans' random draws."""
+        noise); `empty_map`: the map port's model value; `seed`: the plans' random draws;
+        `replan`: a frame no path answers gets a fresh plan (localisation.verified_views.replan)."""
         super().__init__()
-        self.mission, self.legs, self.dt, self.seed = mission, legs, dt, seed
+        self.mission, self.legs, self.dt, self.seed, self.replan = mission, legs, dt, seed, replan
         self.planner = planner
         self.recovery = recovery
         mem = PlannerMemory(ControlSequence.empty(q0, dt))
@@ -181,6 +186,10 @@ class NBVSPlanner(LeafSystem):
             if res is None or res.status != "ok":
                 legs = ()
                 res = self.recovery.correct(omap, belief.state, mem.target, belief.covariance)
+        if res.status != "ok" and belief.check == "correct" and self.replan and not mem.replanned:
+            again = self._replan(mem, omap, belief, t0)
+            if again is not None:
+                return again
         if res.status != "ok":
             # nothing to execute: an empty plan ends at once where the robot is, and its frame
             # is taken again (counted towards mission.max_recoveries)
@@ -190,7 +199,26 @@ class NBVSPlanner(LeafSystem):
         tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls, res.states,
                               "relocalise" if purpose == "stay" else purpose, mem.target)
         return PlannerMemory(tau, mem.planned_for_scan, mem.report, belief.frame, mem.target, legs,
-                             mem.recovery_s + time.perf_counter() - t0)
+                             mem.recovery_s + time.perf_counter() - t0, mem.replanned)
+
+    def _replan(self, mem: PlannerMemory, omap: OccupancyMap, belief: Belief, t0: float) -> PlannerMemory | None:
+        """localisation.verified_views.replan: the next view planned afresh from the registered
+        belief (the scan's plan made again, its seed drawn from the frame), emitted leg by leg
+        as a scan's plan is; the report's plan becomes it (the prediction the scan is judged by)
+        and says that it was re-planned. None when the planner finds no view either."""
+        rng = np.random.default_rng([self.seed, 23, belief.frame])
+        res: PlanResult = self.planner.plan(PlanRequest(omap, belief.state, rng, belief.covariance))
+        if res.status != "ok":
+            return None
+        ends = self._legs(res.controls)
+        first = ends[0]
+        tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls[:first], res.states[:first + 1],
+                              "leg" if len(ends) > 1 else "view", res.states[-1])
+        result = {**res.to_json(), "replanned_at_frame": int(belief.frame)}
+        rep = dc.replace(mem.report, result=result, plan_id=tau.plan_id, motion_sim_s=len(res.controls) * tau.dt)
+        return PlannerMemory(tau, mem.planned_for_scan, rep, belief.frame, res.states[-1],
+                             tuple(res.states[e] for e in ends[1:-1]), mem.recovery_s + time.perf_counter() - t0,
+                             replanned=True)
 
     def _first_leg(self, res: PlanResult, legs: tuple) -> tuple[PlanResult, tuple]:
         """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of

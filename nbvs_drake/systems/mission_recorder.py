@@ -111,7 +111,8 @@ class MissionRecorder(LeafSystem):
 
     @staticmethod
     def _plan_json(report: PlanReport) -> dict:
-        return {key: v for key, v in report.to_json().items() if key not in ("scan", "believed_state", "corrected_state")}
+        skip = ("scan", "believed_state", "corrected_state")
+        return {key: v for key, v in report.to_json().items() if key not in skip}
 
     def _publish(self, context):
         # moving: sample the executed path (a sink's side effect, as the log)

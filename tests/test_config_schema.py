@@ -72,7 +72,8 @@ def test_the_old_flat_schema_round_trips(name):
     legs that end after turns only came after it: an old record's search is the one of before,
     None, and its legs end after drives; so did planner.gain_tolerance: an old record's travel
     factor is eq. 4's, among all views; and planner.utility.clearance and free_candidates: an old
-    record's rollouts keep Algorithm 1's rule, its plans one round of draws)."""
+    record's rollouts keep Algorithm 1's rule, its plans one round of draws; and the verified
+    views' fresh plan after a frame, localisation.verified_views.replan: an old record has none)."""
     if name.startswith("real_robot"):
         pytest.skip("the real-robot scenes postdate the old flat schema")
     sc = load_scenario(name)
@@ -81,11 +82,12 @@ def test_the_old_flat_schema_round_trips(name):
     assert back.localisation.search is None
     vv = back.localisation.verified_views
     assert vv is None or vv.legs is None or vv.legs.after_drives
+    assert vv is None or not vv.replan
     assert back.planner.gain_tolerance == 1.0
     assert getattr(back.planner.utility, "clearance", 0.0) == 0.0 and back.planner.free_candidates == 0
     assert _same(sc, back, ignore=("localisation.search", "localisation.verified_views.legs.after_drives",
                                    "planner.gain_tolerance", "planner.utility.clearance",
-                                   "planner.free_candidates")) == {}
+                                   "planner.free_candidates", "localisation.verified_views.replan")) == {}
 
 
 def test_an_old_setting_changes_only_its_own_field():
@@ -110,12 +112,13 @@ def test_an_old_record_loads_through_the_migration():
     assert isinstance(sc.planner.motion_planner, Roadmap) and sc.planner.obstacles.base_clearance == 0.15
     # the preset as it was then: the registration's search of before (localisation.search),
     # legs that end after drives too, rollouts under Algorithm 1's rule alone, one round of draws
-    # evaluated at one stride
+    # evaluated at one stride, no fresh plan after a frame
     assert sc.localisation.search is None and vv.legs.after_drives and sc.planner.utility.clearance == 0.0
-    assert sc.planner.free_candidates == 0
+    assert sc.planner.free_candidates == 0 and not vv.replan
     assert _same(sc, load_scenario("cluttered_room_nbvs", seed=1, settings=[
         "scene.object.kind=bunny", "localisation.search=null", "localisation.verified_views.legs.after_drives=true",
-        "planner.utility.clearance=0.0", "planner.free_candidates=0", "planner.evaluator.coarse_stride=null"]),
+        "planner.utility.clearance=0.0", "planner.free_candidates=0", "planner.evaluator.coarse_stride=null",
+        "localisation.verified_views.replan=false"]),
         ignore=("name",)) == {}
 
 

@@ -576,3 +576,28 @@ def test_the_builtin_nbvs_scenarios_are_the_experiments_levels(experiment, scena
     vv = builtin.localisation.verified_views
     assert vv is not None and vv.landmarks.occlusion and vv.landmarks.facing
     assert builtin.localisation.search is not None
+
+
+def test_a_series_figure_draws_only_the_levels_it_names(tmp_path, monkeypatch):
+    """A `series` figure with `levels` draws only the cells at those levels (clutter draws its
+    rungs and presets, not every trial)."""
+    from nbvs_drake.experiments import figures
+
+    def cell(planner, v):
+        return {"levels": {"utility": "EU", "planner": planner},
+                "series": {"coverage": {"mean": [v, v + 10], "std": [1.0, 1.0], "n": [2, 2]}}}
+    table = {"cells": [cell("nbvs", 30.0), cell("trial", 40.0), cell("preset", 50.0)]}
+    drawn = []
+    real = figures.plt.Axes.legend
+
+    def legend(ax, *a, **kw):
+        drawn.append([t for t in ax.get_legend_handles_labels()[1]])
+        return real(ax, *a, **kw)
+    monkeypatch.setattr(figures.plt.Axes, "legend", legend)
+    spec = {"file": "c.png", "kind": "series", "series": "coverage", "panels": "utility",
+            "levels": {"planner": ["nbvs", "preset"]}}
+    figures.draw_series({"series": [{"name": "coverage", "unit": "%"}]}, table, spec, tmp_path / "c.png")
+    assert drawn == [["nbvs (2 runs)", "preset (2 runs)"]] and (tmp_path / "c.png").stat().st_size > 0
+    drawn.clear()
+    figures.draw_series({}, table, {**spec, "levels": None}, tmp_path / "d.png")
+    assert drawn == [["nbvs (2 runs)", "trial (2 runs)", "preset (2 runs)"]]

@@ -8,6 +8,9 @@
 - `bars`: a metric's mean per cell with each seed's value as a dot;
 - `scatter`: the prediction analysis (Santos et al. 2020 Fig. 11): predicted against revealed
   unknown volume, the ideal line and the least-squares line with its R².
+
+A `series` figure may name `levels` ({factor: [labels]}): only the cells at those levels are
+drawn (an experiment whose trials would crowd the legend draws its rungs and its preset).
 """
 
 from __future__ import annotations
@@ -60,9 +63,12 @@ def draw_series(r, table, fig_spec, path: Path):
     panel_f = fig_spec.get("panels")
     panels = _panels(table, panel_f)
     fig, axes = plt.subplots(1, len(panels), figsize=(5.6 * len(panels), 4.0), dpi=110, squeeze=False)
+    only = fig_spec.get("levels") or {}
     for ax, pv in zip(axes[0], panels):
         for i, c in enumerate(table["cells"]):
             if panel_f and c["levels"].get(panel_f) != pv:
+                continue
+            if any(c["levels"].get(f) not in [str(x) for x in labels] for f, labels in only.items()):
                 continue
             s = _series_of(table, i, name)
             if not s or not s["mean"]:

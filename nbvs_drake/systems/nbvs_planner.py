@@ -151,13 +151,19 @@ class NBVSPlanner(LeafSystem):
             elif mi.stop_min_utility and res.utility < mi.stop_min_utility:
                 new = PlannerMemory(mem.controls, k, dc.replace(rep, stop_reason="score_below_threshold"))
             else:
-                ends = self._legs(res.controls)
-                first = ends[0]
-                tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls[:first],
-                                      res.states[:first + 1], "leg" if len(ends) > 1 else "view", res.states[-1])
+                tau, legs = self._first_of(res, mem.controls.plan_id + 1)
                 rep = dc.replace(rep, plan_id=tau.plan_id, motion_sim_s=len(res.controls) * tau.dt)
-                new = PlannerMemory(tau, k, rep, belief.frame, res.states[-1], tuple(res.states[e] for e in ends[1:-1]))
+                new = PlannerMemory(tau, k, rep, belief.frame, res.states[-1], legs)
         state.get_mutable_abstract_state(self._mem).set_value(new)
+
+    def _first_of(self, res: PlanResult, plan_id: int) -> tuple[ControlSequence, tuple]:
+        """A view's plan as it is emitted: its first leg (purpose "leg", or "view" when it has
+        one), targeting the plan's end, and the planned states where its later legs end."""
+        ends = self._legs(res.controls)
+        first = ends[0]
+        tau = ControlSequence(plan_id, self.dt, res.controls[:first], res.states[:first + 1],
+                              "leg" if len(ends) > 1 else "view", res.states[-1])
+        return tau, tuple(res.states[e] for e in ends[1:-1])
 
     def _legs(self, controls) -> list[int]:
         """Where the plan's legs end (`LegRule`: verified views' legs under noise), else [m]."""
@@ -210,15 +216,11 @@ class NBVSPlanner(LeafSystem):
         res: PlanResult = self.planner.plan(PlanRequest(omap, belief.state, rng, belief.covariance))
         if res.status != "ok":
             return None
-        ends = self._legs(res.controls)
-        first = ends[0]
-        tau = ControlSequence(mem.controls.plan_id + 1, self.dt, res.controls[:first], res.states[:first + 1],
-                              "leg" if len(ends) > 1 else "view", res.states[-1])
+        tau, legs = self._first_of(res, mem.controls.plan_id + 1)
         result = {**res.to_json(), "replanned_at_frame": int(belief.frame)}
         rep = dc.replace(mem.report, result=result, plan_id=tau.plan_id, motion_sim_s=len(res.controls) * tau.dt)
-        return PlannerMemory(tau, mem.planned_for_scan, rep, belief.frame, res.states[-1],
-                             tuple(res.states[e] for e in ends[1:-1]), mem.recovery_s + time.perf_counter() - t0,
-                             replanned=True)
+        return PlannerMemory(tau, mem.planned_for_scan, rep, belief.frame, res.states[-1], legs,
+                             mem.recovery_s + time.perf_counter() - t0, replanned=True)
 
     def _first_leg(self, res: PlanResult, legs: tuple) -> tuple[PlanResult, tuple]:
         """A re-planned leg (turn, drive, turn) cut after its first turn when that is a leg of

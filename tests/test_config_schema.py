@@ -130,6 +130,23 @@ def test_old_settings_and_documents_migrate():
         migrate("mission:\n  merge_frames: false\n")
 
 
+def test_a_record_that_names_a_removed_field_at_its_old_value_loads_without_it():
+    """planner.coverage.facing_density and back_side (tried, not adopted, removed): a record
+    written whole while they existed names both as false and loads as today's scenario; a
+    document that turns one on is refused by name, in one line."""
+    rec = json.loads(gzip.decompress((ROOT / "docs/records/clutter/EU-nbvs_free_margin_replan_s1.json.gz").read_bytes()))
+    text = rec["scenario_yaml"]
+    assert "back_side: false" in text and "facing_density: false" in text
+    sc = scenario_from_text(text)
+    assert sc.planner.coverage.radius == 0.003 and not hasattr(sc.planner.coverage, "back_side")
+    assert sc.localisation.verified_views.replan and sc.scene.clutter == "chairs"
+    with pytest.raises(ScenarioError, match=r"^planner.coverage.back_side was removed .*only false") as e:
+        scenario_from_text(text.replace("back_side: false", "back_side: true"))
+    assert "\n" not in str(e.value)
+    with pytest.raises(ScenarioError, match="planner.facing_density was removed"):
+        migrate("planner:\n  facing_density: true\n  eu_samples: 7\n")
+
+
 def test_settings_reach_into_the_current_variant():
     sc = load_scenario("teapot_du", settings=["planner.evaluator=!Hrt {a: 2}", "planner.evaluator.a=3"])
     assert sc.planner.evaluator == Hrt(a=3, stride=2)

@@ -188,7 +188,7 @@ class OldScenario:
 
 #: options removed, with the old default they must have (anything else is refused)
 REMOVED = {("noise", "perturb_zero_commands"): False, ("mission", "merge_frames"): True,
-           ("planner", "eu_rollout_registration"): True}
+           ("planner", "eu_rollout_registration"): True, ("planner", "facing_density"): False}
 
 #: keys that exist only in the old schema: a scenario holding one of them is an old one
 _OLD_ONLY = {
@@ -248,7 +248,7 @@ def from_old(o: OldScenario) -> S.Scenario:
     """Today's scenario with the meaning of an old one."""
     for (sec, key), default in REMOVED.items():
         if getattr(getattr(o, sec), key) != default:
-            raise ScenarioError(f"{sec}.{key} was removed (it was used by no scenario or experiment); "
+            raise ScenarioError(f"{sec}.{key} was removed (docs/decisions.md); "
                                 f"only {str(default).lower()} is possible")
     oo, os_, p, m = o.scene.object, o.sensor, o.planner, o.mission
     obj = S.ObjectConfig(kind=oo.kind, mesh=oo.mesh or None,
@@ -299,7 +299,7 @@ def from_old(o: OldScenario) -> S.Scenario:
         mvd = float(sensor.resolved().z_far)
     planner = S.PlannerConfig(
         strategy=strategy[p.strategy](), metric=p.metric,
-        coverage=S.CoverageGain(radius=p.coverage_radius, facing_density=p.facing_density),
+        coverage=S.CoverageGain(radius=p.coverage_radius),
         n_candidates=p.n_candidates, max_generation_factor=p.max_generation_factor, max_view_distance=mvd,
         overlap_h=p.overlap_h, top_k=p.top_k, weights=list(p.weights), use_distance=p.use_distance,
         evaluator=evaluator, utility=utility, motion_planner=motion, tree_step=p.tree_step,
@@ -354,7 +354,7 @@ def to_old(s: S.Scenario) -> OldScenario:
         op.view_poses = st.poses
     elif isinstance(st, S.ViewCircle):
         op.circle_views, op.circle_range, op.circle_height = st.views, st.range or 0.0, st.height or 0.0
-    op.metric, op.coverage_radius, op.facing_density = p.metric, p.coverage.radius, p.coverage.facing_density
+    op.metric, op.coverage_radius = p.metric, p.coverage.radius
     op.n_candidates, op.max_generation_factor, op.max_view_distance = (p.n_candidates, p.max_generation_factor,
                                                                        p.max_view_distance)
     op.overlap_h, op.top_k, op.weights, op.use_distance = p.overlap_h, p.top_k, list(p.weights), p.use_distance
@@ -397,6 +397,49 @@ def to_old(s: S.Scenario) -> OldScenario:
         op.eu_registered_sigma = list(vv.registered_sigma)
     o.planner, o.mission = op, om
     return o
+
+
+#: fields of today's schema removed since (options tried and not adopted; docs/decisions.md),
+#: with the one value a scenario written before may hold: a record's or a user's scenario.yaml
+#: that names one at that value loads without it; any other value is refused
+REMOVED_FIELDS = {("planner", "coverage", "facing_density"): False,
+                  ("planner", "coverage", "back_side"): False}
+
+
+def drop_removed_fields(text: str, what: str = "") -> str:
+    """`text` (a scenario YAML document of today's schema) without the REMOVED_FIELDS it names
+    at their one possible value; the text unchanged when it names none."""
+    import yaml
+    try:
+        root = yaml.compose(text)
+    except yaml.YAMLError:
+        return text  # the typed loader names the problem
+    dropped = False
+    for path, value in REMOVED_FIELDS.items():
+        node = root
+        for key in path[:-1]:
+            node = _child(node, key)
+        if not isinstance(node, yaml.MappingNode):
+            continue
+        for pair in list(node.value):
+            k, v = pair
+            if isinstance(k, yaml.ScalarNode) and k.value == path[-1]:
+                if not (isinstance(v, yaml.ScalarNode) and v.value.lower() == str(value).lower()):
+                    raise ScenarioError(f"{'.'.join(path)} was removed (tried, not adopted: docs/decisions.md); "
+                                        f"only {str(value).lower()} is possible{f' in {what}' if what else ''}")
+                node.value.remove(pair)
+                dropped = True
+    return yaml.serialize(root) if dropped else text
+
+
+def _child(node, key: str):
+    """The value node of `key` in a YAML mapping node (None when absent or not a mapping)."""
+    import yaml
+    if isinstance(node, yaml.MappingNode):
+        for k, v in node.value:
+            if isinstance(k, yaml.ScalarNode) and k.value == key:
+                return v
+    return None
 
 
 def load_old_text(text: str, defaults: OldScenario | None = None) -> OldScenario:

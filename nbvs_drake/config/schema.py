@@ -710,13 +710,6 @@ class Steering:
 class CoverageGain:
     """Settings of the metric `coverage` (the covered surface area a view is expected to add)."""
     radius: float = 0.003  #: a surface point is covered when a sample lies this close (m; the papers' 3 mm)
-    #: a ray on known surface counts the density of the side facing it (the points' normals),
-    #: so a view of a thin part's unseen side gains
-    facing_density: bool = False
-    #: a ray on known surface whose voxel's points all face away from it (it meets the unseen
-    #: side of a thin wall that shares the voxel with its seen side) gains as on new surface;
-    #: otherwise the voxel's one density, as without it (facing_density decides when both are on)
-    back_side: bool = False
 
 
 @dc.dataclass

@@ -224,64 +224,11 @@ def _count_near(near, bmin, res, i, j, k, ox, oy, oz, n_near, t_unknown):
 
 
 @nb.njit(cache=True, inline="always")
-def _cover_gain(density, cov_k, pitch, stride2, t, cos=1.0):
+def _cover_gain(density, cov_k, pitch, stride2, t):
     """Covered area (m^2) a ray adds landing at range t on surface of sample density `density`
-    (see M_COVER_GAIN), meeting it at the cosine `cos` (its samples spread over 1 / cos the
-    area; 1: face-on)."""
+    (see M_COVER_GAIN)."""
     s2 = (pitch * t) * (pitch * t)
-    a = s2 / max(cos, 0.05)
-    return stride2 * a * (math.exp(-cov_k * density) - math.exp(-cov_k * (density + 1.0 / a)))
-
-
-#: a ray meets the side of a voxel's surface whose normals face it (n . (-d) > FACING_COS, a
-#: little beyond 90 degrees as curved surface turns): evaluate_views' `facing`; chosen by
-#: measurement (docs/decisions.md)
-FACING_COS = -0.25
-
-
-@nb.njit(cache=True, inline="always")
-def _facing_density(row, fdens, fnorm, fcos, dx, dy, dz):
-    """(density, cos) of the surface in an occupied voxel that a ray of direction (dx, dy, dz)
-    meets: over the voxel's normal bins (table row `row`) whose mean normal n faces the ray
-    (c = n . (-d) > fcos), the count-weighted mean of their sample densities and of c, the
-    cosine at which the ray meets that surface. When no bin faces the ray it meets the
-    voxel's unseen side: density 0, at the weighted mean of |c|; when the voxel holds no
-    point (row < 0): density 0 met face-on. See views.facing_density."""
-    if row < 0:
-        return 0.0, 1.0
-    num = 0.0
-    den = 0.0
-    cf = 0.0
-    cb = 0.0
-    wb = 0.0
-    for b in range(fdens.shape[1]):
-        w = fnorm[row, b, 3]
-        if w > 0.0:
-            c = -(fnorm[row, b, 0] * dx + fnorm[row, b, 1] * dy + fnorm[row, b, 2] * dz)
-            if c > fcos:
-                num += w * fdens[row, b]
-                cf += w * c
-                den += w
-            else:
-                cb += w * abs(c)
-                wb += w
-    if den > 0.0:
-        return num / den, cf / den
-    return 0.0, (cb / wb if wb > 0.0 else 1.0)
-
-
-@nb.njit(cache=True, inline="always")
-def _meets_back(row, fnorm, fcos, dx, dy, dz):
-    """Whether a ray of direction (dx, dy, dz) meets only the back of the surface in an
-    occupied voxel: the voxel holds points (table row `row` >= 0) and none of its normal bins'
-    mean normals n faces the ray (n . (-d) <= fcos). See views.side_normals."""
-    if row < 0:
-        return False
-    for b in range(fnorm.shape[1]):
-        if fnorm[row, b, 3] > 0.0:
-            if -(fnorm[row, b, 0] * dx + fnorm[row, b, 1] * dy + fnorm[row, b, 2] * dz) > fcos:
-                return False
-    return True
+    return stride2 * s2 * (math.exp(-cov_k * density) - math.exp(-cov_k * (density + 1.0 / s2)))
 
 
 @nb.njit(cache=True, inline="always")
@@ -367,7 +314,7 @@ def _eval_one_view(grid, sensor, metric, view, work, out):
     the box, can change (ranking_score's roi_margin)."""
     cls, H, U, O, hc, bmin, res, NB, occ_centres, occ = grid
     dirs_cam, t_near, t_far, stride2, pitch, blind_reach, unknown_blinds, max_unknown_before_hit = sensor
-    surface_q, dens, cov_k, near, near_q, score_only, roi, fslot, fdens, fnorm, fcos = metric
+    surface_q, dens, cov_k, near, near_q, score_only, roi = metric
     o, R, vid = view
     ctag, cT, cF, cOH, touched = work
     nx, ny, nz = cls.shape
@@ -386,7 +333,6 @@ def _eval_one_view(grid, sensor, metric, view, work, out):
     e_new = 0.0
     cover = 0.0
     with_cover = dens.shape[0] == nx
-    with_facing = with_cover and fslot.shape[0] == nx
     occ = _occluders_in_view(occ, ox, oy, oz, bmin, ex, ey, ez)
     check_blind = True
     if not unknown_blinds:  # can an occupied voxel lie within the minimum range of the camera?
@@ -515,16 +461,8 @@ def _eval_one_view(grid, sensor, metric, view, work, out):
                                 n_oc_rays += 1
                                 OHm = bit
                             if with_cover and n_near <= mu:  # lands on known surface
-                                d0 = dens[i, j, k]
-                                c0 = 1.0
-                                if with_facing:  # the density of the surface that faces the ray
-                                    if fdens.shape[1] == 0:  # the back side only (views.side_normals)
-                                        if _meets_back(fslot[i, j, k], fnorm, fcos, dx, dy, dz):
-                                            d0 = 0.0
-                                    else:
-                                        d0, c0 = _facing_density(fslot[i, j, k], fdens, fnorm, fcos, dx, dy, dz)
-                                cover += _cover_gain(d0, cov_k, pitch, stride2,
-                                                     _voxel_range(bmin, res, i, j, k, ox, oy, oz), c0)
+                                cover += _cover_gain(dens[i, j, k], cov_k, pitch, stride2,
+                                                     _voxel_range(bmin, res, i, j, k, ox, oy, oz))
                             if _rear_is_unknown(cls, i, j, k, si, sj, sk, ti, tj, tk):  # rear side voxel
                                 n_rsv += 1
                             if not score_only:
@@ -581,7 +519,7 @@ def _eval_one_view(grid, sensor, metric, view, work, out):
 def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far, l_free, l_occ,
                    n_chunks, max_unknown_before_hit=2, near_unknown_blinds=False, surface_q=0.0,
                    density=None, cov_k=0.0, pitch=0.0, stride=1, near=None, near_q=0.0, occluders=None,
-                   score_only=False, roi_margin=-1.0, facing=None, facing_cos=FACING_COS):
+                   score_only=False, roi_margin=-1.0):
     """Per-view metrics (N, N_METRICS) for camera poses (cam_pos (N, 3), cam_rot (N, 3, 3),
     columns = camera axes in the world, +z forward) and unit ray directions in the camera
     frame `dirs_cam` (R, 3) whose ranges are [t_near[r], t_far[r]] along the ray (the
@@ -599,11 +537,6 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     ray `stride` (pixels per ray along a row); `near` (bool grid) marks the unknown voxels
     that may hold new surface, each with the chance `near_q` (planning.views.near_surface;
     None: every unknown voxel, with the chance `surface_q`).
-    `facing` (slot grid int32, bin densities (R, B), bin normals and weights (R, B, 4); see
-    planning.views.facing_density): a ray that lands on known surface gains over the density
-    of the voxel's samples whose normals face it (n . (-d) > `facing_cos`), not over all of
-    the voxel's samples (`density`); with bin densities of no column (views.side_normals), over
-    `density` unless none of the voxel's normal bins faces the ray (density 0: its unseen side).
     `occluders` (M, 8: centre, half size, cos and sin of the yaw; `known_occluders`): known
     solids outside the grid (chairs) that end a ray where it enters them; None: the grid
     alone decides what a ray sees.
@@ -628,12 +561,6 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
         else:
             nr = near
     stride2 = float(stride * stride)
-    if facing is None:
-        fslot = np.zeros((0, 0, 0), np.int32)
-        fdens = np.zeros((0, 0), np.float32)
-        fnorm = np.zeros((0, 0, 4), np.float32)
-    else:
-        fslot, fdens, fnorm = facing
     occ = np.zeros((0, 8)) if occluders is None else occluders
     occ_centres = occupied_centres(cls, bmin, res)
     blind_reach = t_near.max() + 0.8660254037844386 * res  # a voxel's half diagonal beyond the minimum range
@@ -655,7 +582,7 @@ def evaluate_views(logodds, bmin, res, cam_pos, cam_rot, dirs_cam, t_near, t_far
     per = (n + n_chunks - 1) // n_chunks
     grid = (cls, H, U, O, hc, bmin, res, NB, occ_centres, occ)
     sensor = (dirs_cam, t_near, t_far, stride2, pitch, blind_reach, near_unknown_blinds, max_unknown_before_hit)
-    metric = (surface_q, dens, cov_k, nr, near_q, score_only, roi, fslot, fdens, fnorm, facing_cos)
+    metric = (surface_q, dens, cov_k, nr, near_q, score_only, roi)
     for c in nb.prange(n_chunks):
         lo = c * per
         hi = min(n, lo + per)

@@ -58,10 +58,6 @@ class ViewEvaluator:
         self.coverage_radius = sc.planner.coverage.radius if sc.planner.metric == "coverage" else 0.0
         import numba
         self.n_chunks = max(1, numba.get_num_threads())
-        #: planner.coverage.facing_density: a ray on known surface gains over the density of the side it meets
-        self.facing_density = bool(sc.planner.coverage.facing_density)
-        #: planner.coverage.back_side: a ray on only the back of a voxel's surface gains as on new surface
-        self.back_side = bool(sc.planner.coverage.back_side)
         #: planner.view_occluders(): the known environment's boxes that end the views' rays
         self.occluders = K.known_occluders(sc.scene) if sc.planner.view_occluders() else None
 
@@ -216,14 +212,6 @@ class ViewEvaluator:
         thin = resolve_sensor(self.sensor).model_binning ** 2
         return self._per_map("density", omap.object_points, lambda: sample_density(omap, thin=thin))
 
-    def _facing(self, omap: OccupancyMap):
-        """facing_density(omap), once per set of object points."""
-        return self._per_map("facing", omap.object_points, lambda: facing_density(omap))
-
-    def _sides(self, omap: OccupancyMap):
-        """side_normals(omap), once per set of object points."""
-        return self._per_map("sides", omap.object_points, lambda: side_normals(omap))
-
     def _near(self, omap: OccupancyMap):
         """near_surface(omap), once per occupancy grid."""
         return self._per_map("near", omap.logodds, lambda: near_surface(omap))
@@ -253,10 +241,6 @@ class ViewEvaluator:
         if self.coverage_radius > 0:
             kw.update(density=self._density(omap), cov_k=np.pi * self.coverage_radius ** 2, pitch=self.pitch,
                       stride=stride)
-            if self.facing_density or self.back_side:
-                f = self._facing(omap) if self.facing_density else self._sides(omap)
-                if f is not None:
-                    kw.update(facing=f)
             if self.near_surface_model:
                 near, near_q = self._near(omap)
                 kw.update(near=near, near_q=near_q)
@@ -379,94 +363,6 @@ def _median_by(key: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndar
     order = np.lexsort((values, key))  # by key, then by value
     keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
     return keys, values[order][start + count // 2]
-
-
-#: the normal bins of facing_density: the 26 directions of a voxel's neighbours
-_BINS = np.array([(x, y, z) for x in (-1, 0, 1) for y in (-1, 0, 1) for z in (-1, 0, 1) if (x, y, z) != (0, 0, 0)],
-                 float)
-_BINS /= np.linalg.norm(_BINS, axis=1)[:, None]
-#: two samples lie on the same side of a surface when their normals are within 60 degrees
-SAME_SIDE_COS = 0.5
-
-
-def facing_density(omap: OccupancyMap, k: int = DENSITY_NEIGHBOURS):
-    """The sample density of each occupied voxel's surface per side, for a coverage gain that
-    depends on the side a ray meets (view_metrics.evaluate_views' `facing`): (slot, dens,
-    norm). slot (int32 grid): the voxel's row in the tables, -1 where it holds no point;
-    dens (R, 26) float32: the median density (samples per m^2) of the voxel's points whose
-    normals (OccupancyMap.object_normals) fall in each of 26 direction bins; norm (R, 26, 4):
-    the bin's mean unit normal and its point count. A point's density is sample_density's
-    (k - 1/3) / (pi d_k^2) over its neighbours on the same side of the surface (normals
-    within 60 degrees, SAME_SIDE_COS): the two sides of a thin wall, or two folds that share a
-    voxel, are separate surfaces, and a view of one does not cover the other. None when the
-    map's points carry no normals (a map saved before they were kept).
-
-    One density per voxel (sample_density) counts a voxel as covered when any side of its
-    surface is, which misjudges thin parts (docs/decisions.md measured it on the dragon)."""
-    from scipy.spatial import cKDTree
-    pts = np.asarray(omap.object_points, np.float64)
-    nrm = np.asarray(omap.object_normals, np.float64)
-    has = np.linalg.norm(nrm, axis=1) > 0.5
-    if not has.any():
-        return None
-    idx, inside = omap.spec.voxel_index(pts)
-    sel = np.flatnonzero(inside & has)
-    dims = omap.spec.dims
-    nb = len(_BINS)
-    if len(sel) <= k:
-        return np.full(dims, -1, np.int32), np.zeros((0, nb), np.float32), np.zeros((0, nb, 4), np.float32)
-    m = min(4 * k, len(pts))
-    dd, ii = cKDTree(pts).query(pts[sel], m)
-    same = np.einsum("pmj,pj->pm", nrm[ii], nrm[sel]) > SAME_SIDE_COS
-    cnt = np.cumsum(same, axis=1)  # the point itself is its first neighbour
-    enough = cnt[:, -1] > k
-    at = np.argmax(cnt > k, axis=1)  # the k-th neighbour on the same side
-    dk = np.where(enough, dd[np.arange(len(sel)), at], dd[:, -1])
-    dens = _knn_density(np.where(enough, k, cnt[:, -1] - 1), dk)
-    slot, key, norm = _binned_normals(dims, idx[sel], nrm[sel])
-    keys, med = _median_by(key, dens)
-    tab = np.zeros((norm.shape[0], nb), np.float32)
-    tab.reshape(-1)[keys] = med
-    return slot, tab, norm
-
-
-def _binned_normals(dims, idx: np.ndarray, nrm: np.ndarray):
-    """The voxels `idx` (P, 3) of points with unit normals `nrm` (P, 3), binned: (slot grid:
-    each voxel's row, -1 where no point; key (P,): each point's row * 26 + its normal bin;
-    norm (R, 26, 4) float32: each bin's mean unit normal and point count)."""
-    nb = len(_BINS)
-    slot = np.full(dims, -1, np.int32)
-    b = np.argmax(nrm @ _BINS.T, axis=1)
-    vox, row = np.unique(np.ravel_multi_index(idx.T, dims), return_inverse=True)
-    slot.reshape(-1)[vox] = np.arange(len(vox), dtype=np.int32)
-    key = row * nb + b
-    norm = np.zeros((len(vox), nb, 4), np.float64)
-    np.add.at(norm.reshape(-1, 4), key, np.c_[nrm, np.ones(len(nrm))])
-    n3 = norm[..., :3]
-    n3 /= np.maximum(np.linalg.norm(n3, axis=-1, keepdims=True), 1e-12)
-    return slot, key, norm.astype(np.float32)
-
-
-def side_normals(omap: OccupancyMap):
-    """The sides of each occupied voxel's surface, for a coverage gain that tells a ray on a
-    voxel's unseen side (planner.coverage.back_side; view_metrics.evaluate_views' `facing`
-    with bin densities of no column): (slot grid, an (R, 0) table, norm (R, 26, 4): the mean
-    unit normal and point count of the voxel's points in each of 26 direction bins). A ray
-    that none of a voxel's bins faces meets the unseen side of a thin wall that shares the
-    voxel with its seen side: it gains as on new surface; any other ray over the voxel's one
-    density (sample_density). No neighbour queries: one pass over the points. None when the
-    map's points carry no normals."""
-    pts = np.asarray(omap.object_points, np.float64)
-    nrm = np.asarray(omap.object_normals, np.float64)
-    if len(pts) == 0:
-        return None
-    has = np.linalg.norm(nrm, axis=1) > 0.5
-    if not has.any():
-        return None
-    idx, inside = omap.spec.voxel_index(pts)
-    sel = inside & has
-    slot, _, norm = _binned_normals(omap.spec.dims, idx[sel], nrm[sel])
-    return slot, np.zeros((norm.shape[0], 0), np.float32), norm
 
 
 #: unknown voxels within this many voxels of known surface may hold new surface (the

@@ -134,7 +134,8 @@ def test_a_record_that_names_a_removed_field_at_its_old_value_loads_without_it()
     """planner.coverage.facing_density and back_side (tried, not adopted, removed): a record
     written whole while they existed names both as false and loads as today's scenario; a
     document that turns one on is refused by name, in one line."""
-    rec = json.loads(gzip.decompress((ROOT / "docs/records/clutter/EU-nbvs_free_margin_replan_s1.json.gz").read_bytes()))
+    path = ROOT / "docs/records/clutter/EU-nbvs_free_margin_replan_s1.json.gz"
+    rec = json.loads(gzip.decompress(path.read_bytes()))
     text = rec["scenario_yaml"]
     assert "back_side: false" in text and "facing_density: false" in text
     sc = scenario_from_text(text)

@@ -42,13 +42,13 @@ def test_the_configuration_reference_is_current():
 
 
 @pytest.mark.parametrize("preset, definition, levels", [
-    ("nbvs_noise", "motion_noise", {"object": "bunny", "approach": "EU-MU", "planner": "nbvs_fast"}),
+    ("nbvs_noise", "motion_noise", {"object": "bunny", "approach": "EU-MU", "planner": "nbvs_replan"}),
     ("nbvs_room", "clutter", {"utility": "EU", "planner": "nbvs_free_margin_replan"}),
 ])
 def test_a_scenario_from_a_preset_with_only_the_object_set_is_its_experiment_level(tmp_path, preset, definition,
                                                                                   levels):
     """A user under noise starts from the preset and sets only the object: the run is the one
-    the experiment level measured (motion_noise's nbvs_fast and clutter's nbvs_free_margin_replan,
+    the experiment level measured (motion_noise's nbvs_replan and clutter's nbvs_free_margin_replan,
     docs/results.md)."""
     f = tmp_path / "mine.yaml"
     f.write_text(f"name: mine\nseed: 1\npreset: {preset}\nscene:\n  object: {{kind: bunny}}\n")

@@ -560,7 +560,7 @@ def test_ctrl_c_stops_a_batch_and_says_where_the_finished_runs_are(tmp_path):
 
 
 @pytest.mark.parametrize("experiment, scenario, levels, extra", [
-    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_fast"}, []),
+    ("motion_noise", "teapot_eu_mu_nbvs", {"object": "teapot", "approach": "EU-MU", "planner": "nbvs_replan"}, []),
     ("clutter", "cluttered_room_nbvs", {"utility": "EU", "planner": "nbvs_free_margin_replan"},
      ["scene.object.kind=bunny", "scene.object.size=-1"]),
 ])

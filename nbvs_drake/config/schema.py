@@ -513,6 +513,11 @@ class LocalisationConfig:
     #: a finer last stage: correspondences within 8 mm and a 2 mm point-to-plane sigma, for a
     #: noise-free depth sensor (registration.FINE_STAGE)
     fine_stage: bool = False
+    #: a scan point matches a model point only where their normals (each turned towards the
+    #: camera that saw it) face the same way, in every scene (in a room or among obstacles it
+    #: always does): a thin wall's other face (a crate's inside, a cup's) is no match for the
+    #: face seen first, whose pull slid registrations by the wall's thickness
+    facing_matches: bool = False
     verified_views: Optional[VerifiedViews] = None  #: None: every frame after a plan is the scan
     #: the registration's search; None: the search of before (nine starts, 30 coarse
     #: iterations; in a room or among obstacles registration.KNOWN_WALLS), as records made

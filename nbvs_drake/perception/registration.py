@@ -96,6 +96,9 @@ class RegistrationConfig:
     far_match: float = 0.15
     #: with `oriented`: the least dot product of a matched pair's normals
     facing_cos: float = 0.0
+    #: match only surfaces that face the same way in every scene (`oriented`), not only in a
+    #: room or among obstacles (localisation.facing_matches)
+    facing_matches: bool = False
     #: in a room or among obstacles (`near`): a fit below min_fitness is still applied when at
     #: least this share of the far points (walls, furniture: known exactly) lies on their
     #: planes (within 2 far_sigma); a view of mostly new surface of the object matches little of
@@ -114,9 +117,9 @@ class RegistrationConfig:
         agree (their dot product above `facing_cos`), or the pair is no match. A thin part seen
         from its other side (a chair's backrest, 4 cm thick) has its new face within the
         correspondence distance of the face seen first; matched to it, the new face pulled the
-        pose by the part's thickness against every wall in view. (The table scenes, without
-        walls to fall back on, are measured without it.)"""
-        return self.near is not None
+        pose by the part's thickness against every wall in view. In the table scenes with
+        `facing_matches`: a thin wall's inner face (a crate's, a cup's) pulls the same way."""
+        return self.near is not None or self.facing_matches
 
 
 #: localisation.fine_stage: the last stage (scan voxel, correspondence distance, m) and the
@@ -144,6 +147,8 @@ def registration_config(loc: LocalisationConfig, scene: SceneConfig | None = Non
                                     scene.bbox_max[1] + m), **KNOWN_WALLS)
     if loc.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
+    if loc.facing_matches:
+        cfg = dc.replace(cfg, facing_matches=True)
     if loc.search is not None:
         s = loc.search
         cfg = dc.replace(cfg, grid_major=tuple(float(v) for v in s.grid_major), max_coarse_points=s.coarse_points,

@@ -2,6 +2,8 @@
 Localisation system registering each scan, correcting the belief it owns and handing the
 registered scan to the OctreeMapper."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from pydrake.common.value import AbstractValue
@@ -356,3 +358,33 @@ def test_a_wall_alone_does_not_fix_a_low_fitness_pose_two_walls_do():
     two = spread((wall_x, [-1.0, 0.0, 0.0]), (wall_y, [0.0, -1.0, 0.0]))
     assert one[0] < 1e-6 and one[1] < 1e-6  # slid 8 cm along the wall: still on it, still free
     assert two[0] == pytest.approx(0.5, abs=0.01) and two[0] >= cfg.min_far_spread > one[0]
+
+
+def test_a_thin_walls_other_face_does_not_pull_the_pose_with_facing_matches():
+    """localisation.facing_matches in a table scene: a box of 6 mm walls, its model the outer
+    faces of two walls (seen from outside) and the inner faces of the two others. A scan from
+    inside at the true pose sees the inner faces of all four: without the rule the two new
+    inner faces match the outer ones 6 mm away and slide the pose towards them; with it they
+    are no match, and the two known faces hold the pose at the truth."""
+    from nbvs_drake.config import LocalisationConfig
+    from nbvs_drake.perception.registration import PlanarIcp, registration_config
+    g = np.arange(0.0, 0.3, 0.004)
+    u, z = [a.ravel() for a in np.meshgrid(g, g)]
+    zero, third = np.zeros_like(u), np.full_like(u, 0.3)
+    face = lambda x, y: np.c_[x, y, z]  # noqa: E731
+    outer_a, outer_b = face(zero, u), face(u, zero)  # x = 0 and y = 0, seen from outside
+    inner_a, inner_b = face(zero + 0.006, u), face(u, zero + 0.006)
+    inner_c, inner_d = face(third, u), face(u, third)  # x = 0.3 and y = 0.3, seen from inside
+    model = RegistrationModel(
+        np.concatenate([outer_a, outer_b, inner_c, inner_d]),
+        np.concatenate([np.tile(n, (len(u), 1)) for n in ([-1.0, 0, 0], [0, -1.0, 0], [-1.0, 0, 0], [0, -1.0, 0])]))
+    scan = np.concatenate([inner_a, inner_b, inner_c, inner_d])
+    view = ScanView(np.array([0.15, 0.15, 0.15]), scan, KnownSolids.of(load_scenario("default").scene))
+    prior = np.diag([0.05, 0.05, 0.05]) ** 2
+    slide = {}
+    for on in (False, True):
+        cfg = dataclasses.replace(registration_config(LocalisationConfig(facing_matches=on)), model_voxel=0.004)
+        assert cfg.oriented == on
+        xi = PlanarIcp(scan, model, prior, cfg, view=view).refine(np.zeros(3))
+        slide[on] = float(np.hypot(xi[0], xi[1]))
+    assert slide[True] < 0.0005 < 0.002 < slide[False], slide

@@ -94,12 +94,14 @@ def test_full_sizes_follow_the_papers():
     assert size["ig_vs_du"] == 2 * 5  # Figs. 9-10: five runs each
     # Table 6: five repetitions with the paper's settings and either motion planner; ten with this project's
     # (nbvs, nbvs_refine, nbvs_fine, nbvs_reach, nbvs_clear, nbvs_sight, nbvs_face, nbvs_fast), and
-    # thirteen trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
+    # fourteen trials on nbvs_fast (nbvs_tol25, nbvs_k50, nbvs_arcs, nbvs_free, nbvs_free_k1000,
     # nbvs_free_arm3, nbvs_margin, nbvs_free_margin, nbvs_nodist, nbvs_free_margin_tol25,
-    # nbvs_free_margin_1cm, nbvs_free_margin_arm3, nbvs_free_margin_replan) with EU only
-    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 13 * 10
+    # nbvs_free_margin_1cm, nbvs_free_margin_arm3, nbvs_free_margin_replan,
+    # nbvs_free_margin_replan_facing) with EU only
+    assert size["clutter"] == 2 * 2 * 5 + 2 * 10 * 8 + 14 * 10
     assert size["ort_vs_rs"] == 2 * 10 and size["metrics"] == 4 * 10 and size["ort_size"] == 5 * 10
-    assert size["clutter_objects"] == 7 * 2 * 3  # issue 50: seven test objects among the chairs, two maps, 3 seeds
+    # issue 50: seven test objects among the chairs, two maps and the facing matches, 3 seeds
+    assert size["clutter_objects"] == 7 * 3 * 3
     # open and chairs, four planners, five seeds (the bunny); the test objects among the chairs, six planners,
     # three seeds, and the cup's oracle in the open
     assert size["clutter_oracle"] == 2 * 4 * 5 + 7 * 6 * 3 + 3

@@ -104,9 +104,9 @@ def test_notebook_runs_on_a_results_folder(small_run, tmp_path, monkeypatch):
     assert list(ns["runs"]) == ["small"] and len(ns["runs"]["small"].records) == s["scans"]
     assert ns["runs"]["small"].summary == json.loads((out / "summary.json").read_text())  # RunResult.load
     assert ns["table"].cell("teapot/DU/paper")["metrics"]["coverage"]["mean"] == pytest.approx(100 * s["coverage"])
-    # 3 objects x 3 approaches x 8 planners, but the 3 x 4 skipped noise-free DU cells and the
-    # 3 x 2 DU and DU-MU cells of the EU-MU-only trial nbvs_tol25
-    assert [len(v) for v in ns["exp_runs"].values()] == [1] + [0] * 53
+    # 3 objects x 3 approaches x 9 planners, but the 3 x 4 skipped noise-free DU cells and the
+    # 3 x 2 DU and DU-MU cells of each EU-MU-only level (nbvs_tol25, nbvs_replan)
+    assert [len(v) for v in ns["exp_runs"].values()] == [1] + [0] * 56
 
 
 def test_same_seed_same_summary(small_run, tmp_path):

@@ -406,30 +406,29 @@ REMOVED_FIELDS = {("planner", "coverage", "facing_density"): False,
                   ("planner", "coverage", "back_side"): False}
 
 
-def drop_removed_fields(text: str, what: str = "") -> str:
-    """`text` (a scenario YAML document of today's schema) without the REMOVED_FIELDS it names
-    at their one possible value; the text unchanged when it names none."""
-    import yaml
-    try:
-        root = yaml.compose(text)
-    except yaml.YAMLError:
-        return text  # the typed loader names the problem
-    dropped = False
+def drop_removed_fields(text: str, doc: dict, what: str = "") -> str:
+    """`text` (a scenario YAML document of today's schema, parsed as `doc`) without the
+    REMOVED_FIELDS it names at their one possible value; the text unchanged when it names none."""
+    named = []
     for path, value in REMOVED_FIELDS.items():
+        d = doc
+        for key in path[:-1]:
+            d = d.get(key) if isinstance(d, dict) else None
+        if isinstance(d, dict) and path[-1] in d:
+            if d[path[-1]] != value:
+                raise ScenarioError(f"{'.'.join(path)} was removed (tried, not adopted: docs/decisions.md); "
+                                    f"only {str(value).lower()} is possible{f' in {what}' if what else ''}")
+            named.append(path)
+    if not named:
+        return text
+    import yaml
+    root = yaml.compose(text)
+    for path in named:
         node = root
         for key in path[:-1]:
             node = _child(node, key)
-        if not isinstance(node, yaml.MappingNode):
-            continue
-        for pair in list(node.value):
-            k, v = pair
-            if isinstance(k, yaml.ScalarNode) and k.value == path[-1]:
-                if not (isinstance(v, yaml.ScalarNode) and v.value.lower() == str(value).lower()):
-                    raise ScenarioError(f"{'.'.join(path)} was removed (tried, not adopted: docs/decisions.md); "
-                                        f"only {str(value).lower()} is possible{f' in {what}' if what else ''}")
-                node.value.remove(pair)
-                dropped = True
-    return yaml.serialize(root) if dropped else text
+        node.value = [(k, v) for k, v in node.value if not (isinstance(k, yaml.ScalarNode) and k.value == path[-1])]
+    return yaml.serialize(root)
 
 
 def _child(node, key: str):

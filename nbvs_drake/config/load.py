@@ -72,7 +72,7 @@ def scenario_from_text(text: str, what: str = "", preset: str | None = None) -> 
             raise
         except Exception as e:  # noqa: BLE001
             raise ScenarioError(f"malformed scenario {what} (old schema): {' '.join(str(e).split())}") from None
-    text = legacy.drop_removed_fields(text, what)
+    text = legacy.drop_removed_fields(text, doc, what)
     named = doc.get("preset")
     preset = preset or named
     # a scenario written whole (a run's scenario.yaml) over its own preset names every value

@@ -140,15 +140,13 @@ def registration_config(loc: LocalisationConfig, scene: SceneConfig | None = Non
     """The registration's settings of the localisation section (residual cap, fine stage,
     search) and of the scene (in a room or among obstacles: the region reaches the known walls and
     furniture, kept coarser beyond the object's surroundings)."""
-    cfg = RegistrationConfig(residual_cap=loc.cap())
+    cfg = RegistrationConfig(residual_cap=loc.cap(), facing_matches=loc.facing_matches)
     if scene is not None and scene.clutter in ("room", "obstacles"):
         m = cfg.region_margin_xy
         cfg = dc.replace(cfg, near=(scene.bbox_min[0] - m, scene.bbox_min[1] - m, scene.bbox_max[0] + m,
                                     scene.bbox_max[1] + m), **KNOWN_WALLS)
     if loc.fine_stage:
         cfg = dc.replace(cfg, stages=cfg.stages + (FINE_STAGE,), point_sigma=FINE_SIGMA)
-    if loc.facing_matches:
-        cfg = dc.replace(cfg, facing_matches=True)
     if loc.search is not None:
         s = loc.search
         cfg = dc.replace(cfg, grid_major=tuple(float(v) for v in s.grid_major), max_coarse_points=s.coarse_points,
